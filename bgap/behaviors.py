@@ -1,0 +1,107 @@
+"""Driver behaviours: highway-env IDM/MOBIL vehicles with per-vehicle, per-class parameters.
+
+highway-env keeps IDM and MOBIL parameters as class attributes of ``IDMVehicle`` and
+evaluates every IDM prediction with the *deciding* vehicle's parameters. For a mix of
+driver classes we need each vehicle's own parameters, so :class:`BehaviorVehicle` stores
+them as instance attributes and evaluates a vehicle's IDM acceleration with that vehicle's
+parameters when it is an IDM driver (falling back to highway-env's rule for the ego, which
+is not). It also drops highway-env's clipping of the IDM target speed to the lane speed
+limit (added upstream in 2023), without which the paper's aggressive drivers (v0 = 40 m/s)
+could never overspeed on a 30 m/s highway.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from highway_env import utils
+from highway_env.road.road import Road
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.kinematics import Vehicle
+
+AGGRESSIVE = "aggressive"
+CONSERVATIVE = "conservative"
+EGO = "ego"
+CLASSES = (CONSERVATIVE, AGGRESSIVE)
+
+# Paper figure colours (RGB): ego green, aggressive red, conservative blue.
+COLORS = {EGO: (50, 200, 0), AGGRESSIVE: (220, 40, 40), CONSERVATIVE: (40, 90, 220)}
+
+# Field of DriverParams -> IDMVehicle attribute, with the conversion from paper units.
+_ATTRIBUTES = {
+    "time_gap": ("TIME_WANTED", lambda v: v),
+    "min_distance": ("DISTANCE_WANTED", lambda v: v + Vehicle.LENGTH),  # bumper -> centre gap
+    "acc": ("COMFORT_ACC_MAX", lambda v: v),
+    "dec": ("COMFORT_ACC_MIN", lambda v: -v),
+    "delta": ("DELTA", lambda v: v),
+    "politeness": ("POLITENESS", lambda v: v),
+    "min_acc_gain": ("LANE_CHANGE_MIN_ACC_GAIN", lambda v: v),
+    "b_safe": ("LANE_CHANGE_MAX_BRAKING_IMPOSED", lambda v: v),
+    "acc_max": ("ACC_MAX", lambda v: v),
+}
+
+
+def is_stock(params: Mapping[str, Any]) -> bool:
+    """True when a class leaves every parameter to highway-env (the stock IDM)."""
+    return all(params.get(k) is None for k in (*_ATTRIBUTES, "v0"))
+
+
+class BehaviorVehicle(IDMVehicle):
+    """An IDM/MOBIL driver whose parameters are its own, not its class's."""
+
+    # Allow v0 = 40 m/s to be approached without the kinematic model's 40 m/s cap biting.
+    MAX_SPEED = 50.0
+
+    def acceleration(
+        self,
+        ego_vehicle: Vehicle,
+        front_vehicle: Vehicle | None = None,
+        rear_vehicle: Vehicle | None = None,
+    ) -> float:
+        """IDM acceleration of ``ego_vehicle`` with *its own* parameters when it is an IDM
+        driver; its desired speed is not clipped to the speed limit if it is one of ours."""
+        if not ego_vehicle or not isinstance(ego_vehicle, Vehicle):
+            return 0.0
+        driver = ego_vehicle if isinstance(ego_vehicle, IDMVehicle) else self
+        target = getattr(ego_vehicle, "target_speed", 0)
+        if not isinstance(ego_vehicle, BehaviorVehicle) and ego_vehicle.lane is not None:
+            if ego_vehicle.lane.speed_limit is not None:  # highway-env's rule for the others
+                target = np.clip(target, 0, ego_vehicle.lane.speed_limit)
+        acc = driver.COMFORT_ACC_MAX * (
+            1 - np.power(max(ego_vehicle.speed, 0) / abs(utils.not_zero(target)), driver.DELTA)
+        )
+        if front_vehicle:
+            d = ego_vehicle.lane_distance_to(front_vehicle)
+            gap = driver.desired_gap(ego_vehicle, front_vehicle)
+            acc -= driver.COMFORT_ACC_MAX * np.power(gap / utils.not_zero(d), 2)
+        return float(acc)
+
+
+def create_driver(
+    road: Road, label: str, params: Mapping[str, Any], spacing: float, rng: np.random.Generator
+) -> IDMVehicle:
+    """Spawn one background vehicle of class ``label`` behind the last one, as highway-env does.
+
+    A stock class gives an unmodified ``IDMVehicle`` (highway-v0's traffic); otherwise a
+    :class:`BehaviorVehicle` with the given parameters, unset ones keeping highway-env's values.
+    """
+    stock = is_stock(params)
+    vehicle = (IDMVehicle if stock else BehaviorVehicle).create_random(road, spacing=spacing)
+    if params.get("delta") is None:
+        vehicle.randomize_behavior()  # highway-env's DELTA draw in [3.5, 4.5]
+    for key, (attr, convert) in _ATTRIBUTES.items():
+        if params.get(key) is not None:
+            setattr(vehicle, attr, float(convert(params[key])))
+    if params.get("v0") is not None:
+        spread = float(params.get("v0_spread") or 0.0)
+        vehicle.target_speed = float(params["v0"]) * rng.uniform(1 - spread, 1 + spread)
+    vehicle.bgap_label = label
+    vehicle.color = COLORS[label]
+    return vehicle
+
+
+def count_aggressive(mix: float, n: int) -> int:
+    """round(mix * n), halves rounded up (Python's round() would round 2.5 to 2)."""
+    return int(np.floor(mix * n + 0.5))

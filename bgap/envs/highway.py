@@ -1,0 +1,253 @@
+"""The behaviour-rich highway: highway-env's ``highway-v0`` with two driver classes.
+
+Built on ``highway_env.envs.HighwayEnv`` (not a copy): we override vehicle creation (an
+exact number of aggressive drivers), the perception radius, the reward (a real lane-change
+term) and ``info``, and add a per-frame hook used by the trajectory recorder.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from highway_env import utils
+from highway_env.envs.highway_env import HighwayEnv
+from highway_env.road.road import Road, RoadNetwork
+from highway_env.vehicle.kinematics import Vehicle
+
+from bgap.behaviors import (
+    AGGRESSIVE,
+    CLASSES,
+    COLORS,
+    CONSERVATIVE,
+    EGO,
+    count_aggressive,
+    create_driver,
+)
+
+FrameListener = Callable[["BehaviorHighwayEnv"], None]
+
+# Table I of the paper; v0 from the paper's commented-out line (25 m/s +-10%, 40 m/s).
+PAPER_BEHAVIOR: dict[str, Any] = {
+    "name": "paper",
+    CONSERVATIVE: {
+        "time_gap": 1.5,
+        "min_distance": 5.0,
+        "acc": 3.0,
+        "dec": 6.0,
+        "delta": None,
+        "v0": 25.0,
+        "v0_spread": 0.1,
+        "politeness": 0.5,
+        "min_acc_gain": 0.2,
+        "b_safe": 3.0,
+        "acc_max": None,
+    },
+    AGGRESSIVE: {
+        "time_gap": 1.2,
+        "min_distance": 2.5,
+        "acc": 6.0,
+        "dec": 9.0,
+        "delta": None,
+        "v0": 40.0,
+        "v0_spread": 0.0,
+        "politeness": 0.0,
+        "min_acc_gain": 0.0,
+        "b_safe": 9.0,
+        "acc_max": None,
+    },
+}
+
+REWARD_TERMS = ("collision_reward", "lane_change_reward", "right_lane_reward", "high_speed_reward")
+
+
+class _HookedRoad(Road):
+    """A highway-env ``Road`` that tells the environment after every simulation frame."""
+
+    def __init__(self, *args: Any, on_step: Callable[[], None], **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._on_step = on_step
+
+    def step(self, dt: float) -> None:
+        super().step(dt)
+        self._on_step()
+
+
+class BehaviorHighwayEnv(HighwayEnv):
+    """highway-v0 enriched with aggressive and conservative drivers.
+
+    Config keys beyond highway-v0's: ``mix`` (fraction of aggressive background vehicles),
+    ``perception_radius`` [m], ``behavior`` (parameters per class, see
+    :class:`bgap.config.DriverParams`), and a ``lane_change_reward`` that is really paid.
+    """
+
+    @classmethod
+    def default_config(cls) -> dict:
+        config = super().default_config()
+        config.update(
+            {
+                "observation": {
+                    "type": "Kinematics",
+                    "vehicles_count": 5,
+                    "features": ["presence", "x", "y", "vx", "vy"],
+                    "absolute": False,
+                    "normalize": True,
+                    "clip": True,
+                    "see_behind": True,
+                    "order": "sorted",
+                },
+                "action": {"type": "DiscreteMetaAction", "target_speeds": [10, 15, 20, 25, 30]},
+                "lanes_count": 4,
+                "vehicles_count": 5,
+                "duration": 60,
+                "policy_frequency": 1,
+                "simulation_frequency": 15,
+                "mix": 0.5,
+                "perception_radius": 180.0,
+                "behavior": PAPER_BEHAVIOR,
+            }
+        )
+        return config
+
+    def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
+        self.frame_listeners: list[FrameListener] = []
+        self.frame = 0
+        self.episode = -1
+        super().__init__(config, render_mode)
+
+    # ---------------------------------------------------------------- configuration
+    def configure(self, config: dict | None) -> None:
+        super().configure(config)
+        mix, radius = self.config["mix"], self.config["perception_radius"]
+        if not 0.0 <= float(mix) <= 1.0:
+            raise ValueError(f"mix={mix!r} is invalid: must lie in [0, 1] (fraction aggressive)")
+        if not float(radius) > 0 or not np.isfinite(float(radius)):
+            raise ValueError(
+                f"perception_radius={radius!r} is invalid: must be a positive distance"
+            )
+        unknown = set(self.config["behavior"]) - {"name", *CLASSES}
+        if unknown:
+            raise ValueError(f"behavior has unknown classes {sorted(unknown)}; use {CLASSES}")
+        # highway-env reads the perception distance from this class constant at observe time.
+        self.PERCEPTION_DISTANCE = float(radius)
+
+    def define_spaces(self) -> None:
+        super().define_spaces()
+        # Observations are normalised and clipped, so say so (highway-env declares +-inf).
+        space = self.observation_space
+        self.observation_space = spaces.Box(-1.0, 1.0, shape=space.shape, dtype=space.dtype)
+
+    # ---------------------------------------------------------------- scene creation
+    def _reset(self) -> None:
+        self.episode += 1
+        self.frame = 0
+        super()._reset()
+        self._target_lane_before = self.vehicle.target_lane_index
+        self._lane_change = False
+        self._notify()
+
+    def _create_road(self) -> None:
+        self.road = _HookedRoad(
+            network=RoadNetwork.straight_road_network(self.config["lanes_count"], speed_limit=30),
+            np_random=self.np_random,
+            record_history=self.config["show_trajectories"],
+            on_step=self._after_frame,
+        )
+
+    def _create_vehicles(self) -> None:
+        """highway-v0's spawning, with exactly round(mix * n) aggressive drivers at random."""
+        n = int(self.config["vehicles_count"])
+        n_aggressive = count_aggressive(float(self.config["mix"]), n)
+        labels = np.array([AGGRESSIVE] * n_aggressive + [CONSERVATIVE] * (n - n_aggressive))
+        labels = self.np_random.permutation(labels)
+
+        ego = Vehicle.create_random(
+            self.road,
+            speed=25.0,
+            lane_id=self.config["initial_lane_id"],
+            spacing=self.config["ego_spacing"],
+        )
+        ego = self.action_type.vehicle_class(self.road, ego.position, ego.heading, ego.speed)
+        ego.bgap_label, ego.bgap_id, ego.color = EGO, 0, COLORS[EGO]
+        self.controlled_vehicles = [ego]
+        self.road.vehicles.append(ego)
+        spacing = 1 / self.config["vehicles_density"]
+        behavior = self.config["behavior"]
+        for i, label in enumerate(labels, start=1):
+            vehicle = create_driver(self.road, str(label), behavior[label], spacing, self.np_random)
+            vehicle.bgap_id = i
+            self.road.vehicles.append(vehicle)
+
+    # ---------------------------------------------------------------- stepping
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+        self._target_lane_before = self.vehicle.target_lane_index
+        return super().step(action)
+
+    def _after_frame(self) -> None:
+        self.frame += 1
+        self._notify()
+
+    def _notify(self) -> None:
+        for listener in self.frame_listeners:
+            listener(self)
+
+    # ---------------------------------------------------------------- reward and info
+    def lane_changed(self) -> bool:
+        """Whether the last action started a real lane change.
+
+        The meta-action moves the ego's target lane only when the neighbouring lane exists
+        and is reachable, so LANE_LEFT in the leftmost lane is not a lane change.
+        """
+        return self.vehicle.target_lane_index != self._target_lane_before
+
+    def _rewards(self, action: Any) -> dict[str, float]:
+        rewards = super()._rewards(action)
+        rewards["lane_change_reward"] = float(self.lane_changed())
+        return rewards
+
+    def _reward(self, action: Any) -> float:
+        """Weighted sum of the four terms. highway-env leaves the lane-change term out of its
+        normalisation range; ours maps [sum of negative, sum of positive weights] to [0, 1]."""
+        rewards = self._rewards(action)
+        weights = {name: float(self.config[name]) for name in REWARD_TERMS}
+        reward = sum(weights[name] * rewards[name] for name in REWARD_TERMS)
+        if self.config["normalize_reward"]:
+            low = sum(min(w, 0.0) for w in weights.values())
+            high = sum(max(w, 0.0) for w in weights.values())
+            if high > low:
+                reward = utils.lmap(reward, [low, high], [0, 1])
+        return float(reward * rewards["on_road_reward"])
+
+    def observed_vehicles(self) -> list[Vehicle]:
+        """Background vehicles strictly within the perception radius of the ego."""
+        ego = self.vehicle
+        return [
+            v
+            for v in self.road.vehicles
+            if v is not ego and np.linalg.norm(v.position - ego.position) < self.PERCEPTION_DISTANCE
+        ]
+
+    def _info(self, obs: np.ndarray, action: Any | None = None) -> dict:
+        info = super()._info(obs, action)
+        others = [v for v in self.road.vehicles if v is not self.vehicle]
+        seen = self.observed_vehicles()
+        info.update(
+            {
+                "ego_speed": float(self.vehicle.speed),
+                "crashed": bool(self.vehicle.crashed),
+                "lane_change": self.lane_changed(),
+                "lane": int(self.vehicle.lane_index[2]),
+                "aggressive_fraction": _fraction_aggressive(others),
+                "aggressive_fraction_observed": _fraction_aggressive(seen),
+                "observed_count": len(seen),
+            }
+        )
+        return info
+
+
+def _fraction_aggressive(vehicles: list[Vehicle]) -> float:
+    if not vehicles:
+        return 0.0
+    return sum(getattr(v, "bgap_label", None) == AGGRESSIVE for v in vehicles) / len(vehicles)

@@ -1,0 +1,55 @@
+"""Configs compose from conf/, and bad values fail at compose time with clear messages."""
+
+from __future__ import annotations
+
+import pytest
+from hydra.errors import ConfigCompositionException
+from omegaconf.errors import ValidationError
+
+from bgap.config import ConfigError, compose, env_config, validate
+from tests.conftest import make_cfg
+
+
+def test_groups_compose():
+    cfg = make_cfg("env=dense", "mix=0.6", "radius=90", "behavior=stock", "reward=highway")
+    assert (cfg.env.vehicles_count, cfg.env.observed_vehicles) == (40, 40)
+    assert cfg.mix == 0.6 and cfg.radius == 90.0
+    assert cfg.behavior.aggressive.is_stock and cfg.behavior.conservative.is_stock
+    d = env_config(cfg)
+    assert d["perception_radius"] == 90.0 and d["vehicles_count"] == 40
+    assert d["lane_change_reward"] == 0.0 and d["normalize_reward"] is True
+    paper = make_cfg()
+    assert paper.behavior.aggressive.v0 == 40.0 and paper.behavior.conservative.politeness == 0.5
+    assert paper.env.duration == 60 and paper.env.simulation_frequency == 15
+
+
+@pytest.mark.parametrize(
+    "override,match",
+    [
+        ("mix=1.5", "mix=1.5 is invalid"),
+        ("mix=-0.1", "mix"),
+        ("radius=-1", "radius=-1"),
+        ("radius=0", "radius"),
+        ("behavior.aggressive.politeness=2", "politeness"),
+        ("episodes=0", "episodes"),
+    ],
+)
+def test_out_of_range_values_name_the_key(override, match):
+    with pytest.raises(ConfigError, match=match):
+        validate(compose("simulate", [override]))
+
+
+@pytest.mark.parametrize("override", ["foo=1", "env.lanes=3", "reward.crash=-1"])
+def test_unknown_keys_fail_at_compose(override):
+    with pytest.raises(ConfigCompositionException, match="Could not override"):
+        compose("simulate", [override])
+
+
+def test_wrong_types_fail_at_compose():
+    with pytest.raises((ConfigCompositionException, ValidationError)):
+        compose("simulate", ["env.vehicles_count=many"])
+
+
+def test_unknown_group_option_lists_the_choices():
+    with pytest.raises(Exception, match="dense"):
+        compose("simulate", ["env=medium"])
