@@ -1,7 +1,8 @@
 """Benchmarks, run by hand (never by the test suite): they print figures.
 
     python -m bgap.bench env        # policy steps/s of our environment vs highway-v0
-    python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline
+    python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
+                                    # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
 
 Figures are reported beside a baseline measured in the same run, since machines are noisy.
 """
@@ -55,6 +56,99 @@ def bench_env(seconds: float) -> None:
     print("policy steps/s, random ego actions; ratio = bgap paper / highway-v0")
 
 
+def synthetic_log(minutes: float = 60.0, vehicles: int = 40, fps: int = 15, seed: int = 0):
+    """A 4-lane ring-road log: speeds 20-38 m/s drifting slowly, a 2 s lane change every ~20 s
+    per vehicle. Benchmark data only: it has the size and sparsity of real logs."""
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    n_frames = int(minutes * 60 * fps)
+    dt = 1.0 / fps
+    ring = 1200.0
+    speed = np.clip(
+        rng.uniform(20, 38, vehicles)
+        + np.cumsum(rng.normal(0, 0.05, (n_frames, vehicles)), axis=0),
+        10,
+        45,
+    )
+    x = (rng.uniform(0, ring, vehicles) + np.cumsum(speed * dt, axis=0)) % ring
+    lane = np.zeros((n_frames, vehicles))
+    current = rng.integers(0, 4, vehicles).astype(float)
+    for f in range(n_frames):  # lane targets change at random, approached at 2 m/s laterally
+        switch = rng.random(vehicles) < 1.0 / (20 * fps)
+        current = np.where(switch, np.clip(current + rng.choice([-1, 1], vehicles), 0, 3), current)
+        lane[f] = current
+    y = 4.0 * lane
+    for f in range(1, n_frames):
+        y[f] = y[f - 1] + np.clip(4.0 * lane[f] - y[f - 1], -2.0 * dt, 2.0 * dt)
+    vy = np.vstack([np.zeros((1, vehicles)), np.diff(y, axis=0) / dt])
+    frames = np.repeat(np.arange(n_frames), vehicles)
+    return pd.DataFrame(
+        {
+            "frame": frames,
+            "time": frames * dt,
+            "vehicle_id": np.tile(np.arange(vehicles), n_frames),
+            "x": x.ravel(),
+            "y": y.ravel(),
+            "vx": speed.ravel(),
+            "vy": vy.ravel(),
+        }
+    )
+
+
+def bench_cmetric(seconds: float) -> None:
+    """One-hour, 40-vehicle, 15 Hz log: our full scoring vs networkx centralities per frame."""
+    from bgap.cmetric import score_trajectories
+    from bgap.cmetric.centrality import Scene, centralities
+    from bgap.cmetric.io import load_trajectories
+    from bgap.cmetric.reference import centralities_networkx
+    from bgap.config import CMetricConfig
+
+    cfg = CMetricConfig()
+    log = synthetic_log()
+    rows = len(log)
+    score_trajectories(log[log.frame < 100], cfg)  # compile the numba kernel outside the clock
+    start = time.perf_counter()
+    score_trajectories(log, cfg)
+    full = time.perf_counter() - start
+
+    # The baseline gets the same frames, as many as fit in `seconds`.
+    n_frames = int(log.frame.max()) + 1
+    scene = Scene.from_table(load_trajectories(log))
+    take = 50
+    start = time.perf_counter()
+    while True:
+        part = Scene(
+            scene.frames[:take],
+            scene.times[:take],
+            scene.vehicle_ids,
+            scene.x[:take],
+            scene.y[:take],
+            scene.speed[:take],
+            scene.present[:take],
+        )
+        t0 = time.perf_counter()
+        ref = centralities_networkx(part, cfg.mu)
+        nx_time = time.perf_counter() - t0
+        if time.perf_counter() - start > seconds or take >= n_frames:
+            break
+        take = min(n_frames, take * 2)
+    t0 = time.perf_counter()
+    ours = centralities(part, cfg.mu)
+    ours_time = time.perf_counter() - t0
+    assert np.allclose(ours[0], ref[0], equal_nan=True) and np.array_equal(ours[1], ref[1])
+    vf = part.present.sum()
+    print(f"log: {rows:,} vehicle-frames ({n_frames:,} frames x 40 vehicles, 15 Hz, 1 h)")
+    print(f"bgap full scoring (graphs, fits, styles): {full:6.2f} s  {rows / full:12,.0f} vf/s")
+    print(f"on the first {take:,} frames, centralities only (identical results):")
+    print(f"  networkx per frame : {vf / nx_time:12,.0f} vf/s")
+    print(f"  bgap (numba)       : {vf / ours_time:12,.0f} vf/s")
+    print(
+        f"  ratio bgap/networkx: {nx_time / ours_time:12,.0f} x (centralities); "
+        f"{(rows / full) / (vf / nx_time):,.0f} x (full scoring vs networkx centralities)"
+    )
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m bgap.bench", description=__doc__)
     parser.add_argument("what", choices=sorted(BENCHES))
@@ -63,7 +157,7 @@ def main(argv: list[str] | None = None) -> None:
     BENCHES[args.what](args.seconds)
 
 
-BENCHES: dict[str, Callable[[float], None]] = {"env": bench_env}
+BENCHES: dict[str, Callable[[float], None]] = {"env": bench_env, "cmetric": bench_cmetric}
 
 if __name__ == "__main__":
     main()

@@ -201,6 +201,69 @@ class SimulateConfig(BaseConfig):
         _check(self.policy in ("idle", "random"), "policy", self.policy, "use idle or random")
 
 
+@dataclass
+class StyleWeights:
+    """One number per aggressive style."""
+
+    overtaking: float = 1.0
+    overspeeding: float = 1.0
+    weaving: float = 1.0
+
+
+@dataclass
+class CMetricConfig:
+    """CMetric parameters (config group ``cmetric``); README "CMetric" says why each default."""
+
+    name: str = "default"
+    mu: float = 30.0
+    """Traffic-graph radius [m]: an edge joins vehicles closer than this."""
+    window: float = 3.0
+    """Length of the sliding windows the centrality polynomials are fitted on [s]."""
+    stride: float = 1.0
+    """Step between window starts [s]."""
+    degree: int = 2
+    """Degree of the centrality polynomials (the paper: 2)."""
+    regularization: float = 1e-6
+    """Ridge weight lambda of the least-squares fits, per sample, on normalised time."""
+    epsilon: float = 0.5
+    """Radius [s] of the ball in which a critical point's sharpness is measured (weaving)."""
+    sharpness_min: float = 1e-4
+    """Critical points with epsilon-sharpness at or below this are flat, not weaving."""
+    weights: StyleWeights = field(
+        default_factory=lambda: StyleWeights(overtaking=0.1, overspeeding=1.0, weaving=0.1)
+    )
+    """Weight of each style's likelihood in the aggressiveness score."""
+    scales: StyleWeights = field(
+        default_factory=lambda: StyleWeights(overtaking=0.0013, overspeeding=0.165, weaving=0.22)
+    )
+    """Each style's likelihood is divided by its scale before weighting (units: SLE units)."""
+
+    def __post_init__(self) -> None:
+        for key in ("mu", "window", "stride", "epsilon"):
+            v = getattr(self, key)
+            _check(v > 0, f"cmetric.{key}", v, "must be positive")
+        _check(self.degree >= 1, "cmetric.degree", self.degree, "must be >= 1")
+        _check(self.regularization >= 0, "cmetric.regularization", self.regularization, ">= 0")
+        _check(self.sharpness_min >= 0, "cmetric.sharpness_min", self.sharpness_min, ">= 0")
+        for style in ("overtaking", "overspeeding", "weaving"):
+            w, s = getattr(self.weights, style), getattr(self.scales, style)
+            _check(w >= 0, f"cmetric.weights.{style}", w, "must be >= 0")
+            _check(s > 0, f"cmetric.scales.{style}", s, "must be positive")
+
+
+@dataclass
+class CMetricAppConfig:
+    """``python -m bgap.cmetric TRAJECTORIES [overrides]``."""
+
+    cmetric: CMetricConfig = field(default_factory=CMetricConfig)
+    fps: float = 15.0
+    """Frame rate used when the table has frames but no times."""
+    out: Optional[str] = None
+    """Scores file (.csv or .parquet); default: next to the input, ``<stem>_cmetric.csv``."""
+    plot_vehicles: list[int] = field(default_factory=list)
+    """Vehicle ids to plot (first episode); default: the two highest and two lowest scores."""
+
+
 def register_configs() -> None:
     """Register the schemas; YAML files name them in their defaults list."""
     cs = ConfigStore.instance()
@@ -208,6 +271,8 @@ def register_configs() -> None:
     cs.store(group="env", name="base_env", node=EnvConfig)
     cs.store(group="behavior", name="base_behavior", node=BehaviorConfig)
     cs.store(group="reward", name="base_reward", node=RewardConfig)
+    cs.store(group="cmetric", name="base_cmetric", node=CMetricConfig)
+    cs.store(name="base_cmetric_app", node=CMetricAppConfig)
 
 
 def validate(cfg: DictConfig) -> Any:

@@ -1,0 +1,122 @@
+"""Reading and validating trajectory tables for CMetric.
+
+A trajectory table is tidy: one row per vehicle and frame. Columns (aliases in brackets):
+
+- ``vehicle_id`` [``id``, ``track_id``]: vehicle identity within a scene;
+- ``frame`` and/or ``time`` [``t``]: at least one; frames are derived from sorted unique
+  times when absent, times from frames at ``fps`` when absent;
+- ``x``, ``y``: position [m];
+- optional ``vx``, ``vy`` [m/s]: finite differences of position per vehicle when absent;
+- optional ``episode`` [``scene``]: independent scenes (graphs never join two scenes);
+- optional ``label``: ground-truth class, carried through to the scores.
+
+The Parquet written by :mod:`bgap.recorder` is read as is.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ALIASES = {"id": "vehicle_id", "track_id": "vehicle_id", "t": "time", "scene": "episode"}
+
+
+class TrajectoryError(ValueError):
+    """The trajectory table cannot be scored; the message says what is wrong and how to fix it."""
+
+
+def read_table(source: str | Path | pd.DataFrame) -> pd.DataFrame:
+    """A DataFrame, or a ``.csv`` / ``.parquet`` file."""
+    if isinstance(source, pd.DataFrame):
+        return source.copy()
+    path = Path(source)
+    if not path.exists():
+        raise TrajectoryError(f"{path}: no such file")
+    if path.suffix.lower() in (".parquet", ".pq"):
+        return pd.read_parquet(path)
+    if path.suffix.lower() == ".csv":
+        return pd.read_csv(path)
+    raise TrajectoryError(f"{path}: unknown format {path.suffix!r}; use .csv or .parquet")
+
+
+def load_trajectories(source: str | Path | pd.DataFrame, fps: float = 15.0) -> pd.DataFrame:
+    """Read, validate and complete a trajectory table.
+
+    Returns a copy with columns ``episode, frame, time, vehicle_id, x, y, vx, vy`` (plus
+    ``label`` when given), sorted by episode, vehicle and frame.
+
+    Raises :class:`TrajectoryError` for missing columns, NaN or infinite values, duplicate
+    (episode, frame, vehicle) rows, or a time that does not increase with the frame.
+    Vehicles entering and leaving the scene are normal.
+    """
+    df = read_table(source).rename(columns=lambda c: ALIASES.get(str(c), str(c)))
+    missing = [c for c in ("vehicle_id", "x", "y") if c not in df.columns]
+    if "frame" not in df.columns and "time" not in df.columns:
+        missing.append("frame or time")
+    if missing:
+        raise TrajectoryError(
+            f"trajectory table is missing column(s) {missing}; found {list(df.columns)}. "
+            "Needed: vehicle_id, frame or time, x, y (optional vx, vy, episode, label)"
+        )
+    if "episode" not in df.columns:
+        df["episode"] = 0
+    numeric = [c for c in ("frame", "time", "x", "y", "vx", "vy") if c in df.columns]
+    for col in numeric:
+        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
+        bad = ~np.isfinite(values)
+        if bad.any():
+            rows = np.flatnonzero(bad)[:5].tolist()
+            raise TrajectoryError(
+                f"column {col!r} has {int(bad.sum())} NaN, infinite or non-numeric value(s) "
+                f"(first rows {rows}); drop or interpolate them before scoring"
+            )
+        df[col] = values
+    if "frame" not in df.columns:
+        times = np.unique(df["time"].to_numpy())
+        df["frame"] = np.searchsorted(times, df["time"].to_numpy())
+    if "time" not in df.columns:
+        df["time"] = df["frame"] / fps
+    df["frame"] = df["frame"].astype(np.int64)
+
+    dup = df.duplicated(["episode", "frame", "vehicle_id"])
+    if dup.any():
+        first = df.loc[dup, ["episode", "frame", "vehicle_id"]].iloc[0].to_dict()
+        raise TrajectoryError(
+            f"{int(dup.sum())} duplicate (episode, frame, vehicle_id) row(s), first {first}; "
+            "each vehicle may appear once per frame"
+        )
+    df = df.sort_values(["episode", "frame", "vehicle_id"], kind="stable")
+    per_frame = df.groupby(["episode", "frame"], sort=True)["time"]
+    if (per_frame.nunique() > 1).any():
+        raise TrajectoryError("rows of one frame carry different times; one time per frame")
+    frame_time = per_frame.first()
+    steps = frame_time.groupby(level=0).diff().dropna()
+    if (steps <= 0).any():
+        where = steps[steps <= 0].index[0]
+        raise TrajectoryError(
+            f"time is not increasing with frame (episode {where[0]}, frame {where[1]}); "
+            "sort the log or fix its clock"
+        )
+
+    df = df.sort_values(["episode", "vehicle_id", "frame"], kind="stable").reset_index(drop=True)
+    if "vx" not in df.columns or "vy" not in df.columns:
+        df["vx"], df["vy"] = _finite_difference_velocity(df)
+    keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
+    if "label" in df.columns:
+        keep.append("label")
+    return df[keep]
+
+
+def _finite_difference_velocity(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Central differences inside each vehicle's track, one-sided at its ends (np.gradient)."""
+    vx = np.zeros(len(df))
+    vy = np.zeros(len(df))
+    for _, idx in df.groupby(["episode", "vehicle_id"], sort=False).indices.items():
+        if len(idx) < 2:
+            continue
+        t = df["time"].to_numpy()[idx]
+        vx[idx] = np.gradient(df["x"].to_numpy()[idx], t)
+        vy[idx] = np.gradient(df["y"].to_numpy()[idx], t)
+    return vx, vy

@@ -1,0 +1,250 @@
+"""CMetric: centralities, polynomial fits, styles on scenes with known truth, bad inputs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import networkx as nx
+import numpy as np
+import pandas as pd
+import pytest
+
+from bgap.cmetric import TrajectoryError, load_trajectories, score_trajectories
+from bgap.cmetric.centrality import Scene, centralities
+from bgap.cmetric.poly import fit_polynomials
+from bgap.cmetric.reference import centralities_networkx
+from bgap.config import CMetricConfig
+
+
+def table(rows) -> pd.DataFrame:
+    return pd.DataFrame(rows, columns=["frame", "vehicle_id", "x", "y", "vx", "vy"])
+
+
+def scene_of(rows, fps=1.0) -> Scene:
+    return Scene.from_table(load_trajectories(table(rows), fps=fps))
+
+
+# ----------------------------------------------------------------- centralities by hand
+def test_closeness_line_of_three():
+    s = scene_of([(0, 1, 0.0, 0, 0, 0), (0, 2, 10.0, 0, 0, 0), (0, 3, 20.0, 0, 0, 0)])
+    close, _ = centralities(s, mu=15.0)  # edges 1-2, 2-3 (10 m); 1-3 is 20 m, no edge
+    np.testing.assert_allclose(close[0], [2 / 30, 2 / 20, 2 / 30])
+
+
+def test_closeness_disconnected_pair_and_isolated_car():
+    s = scene_of([(0, 1, 0.0, 0, 0, 0), (0, 2, 10.0, 0, 0, 0), (0, 3, 500.0, 0, 0, 0)])
+    close, _ = centralities(s, mu=15.0)
+    # reaches 1 of N - 1 = 2 others at 10 m: (1 / 10) * (1 / 2); isolated: 0
+    np.testing.assert_allclose(close[0], [0.05, 0.05, 0.0])
+
+
+def test_degree_car_passing_two_slower_cars():
+    # Car 1 at 30 m/s from x = -100 passes cars 2 and 3 (20 m/s, one lane over, 20 m apart).
+    # |10 t - 100| < sqrt(15^2 - 4^2) for t in {9, 10, 11}; |10 t - 120| < ... for {11, 12, 13}.
+    rows = []
+    for t in range(16):
+        rows += [
+            (t, 1, 30.0 * t - 100, 0.0, 30.0, 0.0),
+            (t, 2, 20.0 * t, 4.0, 20.0, 0.0),
+            (t, 3, 20.0 * t + 20, 4.0, 20.0, 0.0),
+        ]
+    s = scene_of(rows)
+    expected_1 = [0] * 9 + [1, 1] + [2] * 5
+    for implementation in (centralities, centralities_networkx):
+        _, degree = implementation(s, 15.0)
+        np.testing.assert_array_equal(degree[:, 0], expected_1)
+        np.testing.assert_array_equal(degree[:, 1], 0)  # car 1 is faster: never counted
+        np.testing.assert_array_equal(degree[:, 2], 0)
+
+
+def test_first_frame_neighbours_are_baseline_not_new():
+    rows = [
+        (t, v, 10.0 * v + 5 * t * (v == 1), 0.0, 5.0 * (v == 1), 0.0)
+        for t in range(3)
+        for v in (1, 2)
+    ]
+    _, degree = centralities(scene_of(rows), 50.0)
+    np.testing.assert_array_equal(degree, 0)
+
+
+def test_closeness_and_degree_match_networkx_on_random_frames():
+    rng = np.random.default_rng(0)
+    rows = []
+    for f in range(40):
+        for v in range(14):
+            if rng.random() < 0.85:  # vehicles come and go
+                rows.append(
+                    (f, v, rng.uniform(0, 250), 4.0 * rng.integers(4), rng.uniform(15, 35), 0.0)
+                )
+    s = scene_of(rows)
+    ours = centralities(s, 60.0)
+    ref = centralities_networkx(s, 60.0)
+    np.testing.assert_allclose(ours[0], ref[0], rtol=1e-12, equal_nan=True)
+    np.testing.assert_array_equal(ours[1], ref[1])
+    # and networkx itself on one frame, straight from the definition
+    f = 7
+    present = np.flatnonzero(s.present[f])
+    g = nx.Graph()
+    g.add_nodes_from(present.tolist())
+    for a in present:
+        for b in present:
+            d = np.hypot(s.x[f, a] - s.x[f, b], s.y[f, a] - s.y[f, b])
+            if a < b and d < 60.0:
+                g.add_edge(a, b, weight=d)
+    for node, c in nx.closeness_centrality(g, distance="weight").items():
+        assert ours[0][f, node] == pytest.approx(c)
+
+
+# ----------------------------------------------------------------- polynomial fits
+def test_fit_recovers_a_quadratic_exactly():
+    t = np.linspace(3.0, 6.0, 45)[None, :]
+    z = 2.0 - 0.5 * t + 0.3 * t**2
+    fit = fit_polynomials(t, z, degree=2, regularization=1e-12)
+    np.testing.assert_allclose(fit.derivative(1), -0.5 + 0.6 * t, atol=1e-7)
+    np.testing.assert_allclose(fit.derivative(2), 0.6, atol=1e-6)
+    np.testing.assert_allclose(fit.value(fit.tau), z, atol=1e-9)
+    # default regularisation is small enough to be exact to 1e-4 on this window
+    default = fit_polynomials(t, z, 2, CMetricConfig().regularization)
+    np.testing.assert_allclose(default.derivative(1), -0.5 + 0.6 * t, atol=1e-4)
+
+
+@pytest.mark.parametrize("regularization", [0.0, 1e-6])
+def test_fit_is_finite_on_degenerate_windows(regularization):
+    same_time = np.full((1, 10), 5.0)
+    values = np.arange(10.0)[None, :]
+    fit = fit_polynomials(same_time, values, 2, regularization)
+    assert np.all(np.isfinite(fit.beta))
+    np.testing.assert_allclose(fit.derivative(1), 0.0)
+    constant = fit_polynomials(
+        np.linspace(0, 1, 10)[None, :], np.full((1, 10), 0.3), 2, regularization
+    )
+    np.testing.assert_allclose(fit.value(fit.tau).mean(), 4.5)
+    np.testing.assert_allclose(constant.derivative(1), 0.0, atol=1e-12)
+    np.testing.assert_allclose(constant.derivative(2), 0.0, atol=1e-12)
+
+
+# ----------------------------------------------------------------- styles with known truth
+def known_truth_scene() -> pd.DataFrame:
+    """15 Hz, 30 s: a platoon of 12 cars at 20 m/s, a weaver inside it zig-zagging across
+    the lanes, an overspeeder at 35 m/s passing it in a free lane, a cruiser in one lane."""
+    fps, seconds = 15, 30
+    rows = []
+    for f in range(fps * seconds):
+        t = f / fps
+        for k in range(12):  # platoon in lanes 0, 1, 3, 15 m apart
+            rows.append((f, 100 + k, 20 * t + 15.0 * (k // 3), 4.0 * [0, 1, 3][k % 3], 20.0, 0))
+        weave_y = 6.0 + 6.0 * np.sin(2 * np.pi * t / 5.0)  # lanes 0..3 every 5 s
+        weave_vy = 6.0 * 2 * np.pi / 5.0 * np.cos(2 * np.pi * t / 5.0)
+        rows.append((f, 1, 20 * t + 25.0, weave_y, 20.0, weave_vy))
+        rows.append((f, 2, 35 * t - 150.0, 8.0, 35.0, 0.0))
+        rows.append((f, 3, 20 * t + 40.0, 4.0, 20.0, 0.0))
+    df = pd.DataFrame(rows, columns=["frame", "vehicle_id", "x", "y", "vx", "vy"])
+    df["time"] = df.frame / fps
+    return df
+
+
+def test_styles_rank_the_right_car_first():
+    scores = score_trajectories(known_truth_scene()).vehicles.set_index("vehicle_id")
+    cars = scores.loc[[1, 2, 3]]
+    assert cars.weaving_sle.idxmax() == 1
+    assert cars.overspeeding_sle.idxmax() == 2
+    assert cars.overtaking_sle.idxmin() == 3  # lane changes and overtaking beat cruising
+    assert cars.aggressiveness.idxmin() == 3
+    assert cars.conservative_sle.idxmax() == 3
+    assert cars.aggressiveness.loc[3] < 0.5 * cars.aggressiveness.loc[[1, 2]].min()
+
+
+# ----------------------------------------------------------------- inputs
+def test_reads_recorder_parquet_and_csv(tmp_path):
+    df = known_truth_scene()
+    df.to_csv(tmp_path / "a.csv", index=False)
+    df.drop(columns=["vx", "vy"]).to_parquet(tmp_path / "b.parquet")
+    a = score_trajectories(tmp_path / "a.csv").vehicles
+    b = score_trajectories(tmp_path / "b.parquet").vehicles  # velocities by finite differences
+    assert len(a) == len(b) == 15
+    np.testing.assert_allclose(a.overspeeding_sle, b.overspeeding_sle, rtol=0.2, atol=0.05)
+
+
+def test_vehicles_entering_and_leaving_are_fine():
+    df = known_truth_scene()
+    df = df[~((df.vehicle_id == 100) & (df.frame > 200))]  # leaves
+    df = df[~((df.vehicle_id == 101) & (df.frame < 100))]  # enters late
+    df = df[~((df.vehicle_id == 102) & df.frame.between(50, 80))]  # drops out and returns
+    scores = score_trajectories(df).vehicles
+    assert len(scores) == 15 and np.isfinite(scores.aggressiveness).all()
+
+
+def _bad(kind: str) -> pd.DataFrame:
+    df = known_truth_scene().head(200).copy()
+    if kind == "missing":
+        return df.drop(columns=["y"])
+    if kind == "nan":
+        df.loc[5, "x"] = np.nan
+    if kind == "inf":
+        df.loc[7, "vx"] = np.inf
+    if kind == "duplicate":
+        return pd.concat([df, df.iloc[[3]]])
+    if kind == "time":
+        df.loc[df.frame == 5, "time"] = 0.0
+    return df
+
+
+@pytest.mark.parametrize(
+    "kind,message",
+    [
+        ("missing", r"missing column\(s\) \['y'\]"),
+        ("nan", "column 'x' has 1 NaN"),
+        ("inf", "column 'vx' has 1 NaN, infinite"),
+        ("duplicate", "duplicate"),
+        ("time", "time is not increasing"),
+    ],
+)
+def test_bad_inputs_raise_documented_errors(kind, message):
+    with pytest.raises(TrajectoryError, match=message):
+        load_trajectories(_bad(kind))
+
+
+def test_command_writes_scores_and_plot(tmp_path):
+    path = tmp_path / "scene.parquet"
+    known_truth_scene().to_parquet(path)
+    done = subprocess.run(
+        [sys.executable, "-m", "bgap.cmetric", str(path), "cmetric.mu=60"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    scores = pd.read_csv(tmp_path / "scene_cmetric.csv")
+    assert len(scores) == 15 and "aggressiveness" in scores
+    assert (tmp_path / "scene_cmetric_centrality.png").stat().st_size > 10_000
+    assert "mu: 60.0" in (tmp_path / "scene_cmetric_config.yaml").read_text()
+    bad = subprocess.run(
+        [sys.executable, "-m", "bgap.cmetric", str(path), "cmetric.mu=-1"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert bad.returncode != 0 and "cmetric.mu=-1" in bad.stderr
+
+
+# ----------------------------------------------------------------- labels of the simulator
+# Measured with these seeds (10 episodes, paper preset, mix 0.5): dense 0.908, sparse 0.413.
+# In sparse traffic aggressive drivers leave the others behind within seconds and their
+# graphs go quiet; see the README's CMetric section.
+AUC_FLOOR = {"dense": 0.90, "sparse": 0.40}
+
+
+@pytest.mark.parametrize("density", ["sparse", "dense"])
+def test_aggressive_labels_score_higher_on_simulated_traffic(density):
+    from bgap.cmetric.score import label_auc
+    from bgap.simulate import simulate
+    from tests.conftest import make_cfg
+
+    cfg = make_cfg(f"env={density}", "mix=0.5", "behavior=paper", "seed=500")
+    vehicles = score_trajectories(simulate(cfg, episodes=10, progress=False)).vehicles
+    auc = label_auc(vehicles)
+    assert auc >= AUC_FLOOR[density], f"{density} AUC {auc:.3f}"
+    if density == "dense":
+        means = vehicles.groupby("label").aggressiveness.mean()
+        assert means["aggressive"] > 2 * means["conservative"]
