@@ -264,6 +264,154 @@ class CMetricAppConfig:
     """Vehicle ids to plot (first episode); default: the two highest and two lowest scores."""
 
 
+@dataclass
+class AgentConfig:
+    """DQN hyperparameters (config group ``agent``). Defaults: the paper and the authors'
+    rl-agents configuration (FACTS.md)."""
+
+    name: str = "dqn"
+    net_arch: list[int] = field(default_factory=lambda: [256, 256])
+    learning_rate: float = 5e-4
+    loss: str = "mse"
+    """``mse`` (the paper) or ``huber`` (SB3's default)."""
+    gamma: float = 0.8
+    batch_size: int = 32
+    buffer_size: int = 15_000
+    target_update_interval: int = 50
+    """Environment steps between target-network copies (one update per step: = updates)."""
+    train_freq: int = 1
+    gradient_steps: int = 1
+    learning_starts: int = 200
+    exploration_initial: float = 1.0
+    exploration_final: float = 0.05
+    exploration_decay_steps: float = 6000.0
+    """Time constant [env steps] of epsilon = final + (initial - final) exp(-t / decay)."""
+    max_grad_norm: float = 10.0
+    replay: str = "per"
+    """``per`` (prioritized, the paper) or ``uniform`` (SB3's buffer, the authors' code)."""
+    per_alpha: float = 0.6
+    per_beta0: float = 0.4
+
+    def __post_init__(self) -> None:
+        _check(self.loss in ("mse", "huber"), "agent.loss", self.loss, "use mse or huber")
+        _check(self.replay in ("per", "uniform"), "agent.replay", self.replay, "use per or uniform")
+        _check(0 < self.gamma <= 1, "agent.gamma", self.gamma, "must lie in (0, 1]")
+        _check(self.learning_rate > 0, "agent.learning_rate", self.learning_rate, "must be > 0")
+        _check(
+            0 <= self.exploration_final <= self.exploration_initial <= 1,
+            "agent.exploration_final",
+            self.exploration_final,
+            "need 0 <= exploration_final <= exploration_initial <= 1",
+        )
+        _check(
+            self.batch_size >= 1 and self.buffer_size >= self.batch_size,
+            "agent.buffer_size",
+            self.buffer_size,
+            "must be >= agent.batch_size >= 1",
+        )
+
+
+@dataclass
+class ProfileConfig:
+    """Compute budget (config group ``profile``: ``quick`` or ``paper``)."""
+
+    name: str = "quick"
+    train_steps: int = 1500
+    """Environment steps of training (the cap when ``train_episodes`` is set)."""
+    train_episodes: Optional[int] = None
+    """Stop after this many training episodes (the paper: 3000)."""
+    n_envs: int = 2
+    """Parallel training environments (subprocesses when > 1)."""
+    exploration_decay_steps: Optional[float] = None
+    """Overrides ``agent.exploration_decay_steps`` (short budgets need a shorter decay)."""
+    eval_every_episodes: int = 0
+    """Periodic greedy evaluation during training every this many episodes; 0: off."""
+    eval_during_training: int = 20
+    """Episodes of each periodic evaluation (the paper: 20 every 50)."""
+    eval_episodes: int = 100
+    """Episodes per grid cell of the final evaluation."""
+    checkpoint_every: int = 1000
+    """Steps between checkpoints (model and replay buffer)."""
+
+    def __post_init__(self) -> None:
+        _check(self.train_steps >= 1, "profile.train_steps", self.train_steps, "must be >= 1")
+        _check(
+            self.train_episodes is None or self.train_episodes >= 1,
+            "profile.train_episodes",
+            self.train_episodes,
+            "must be >= 1 or null",
+        )
+        _check(self.n_envs >= 1, "profile.n_envs", self.n_envs, "must be >= 1")
+        _check(self.eval_episodes >= 1, "profile.eval_episodes", self.eval_episodes, ">= 1")
+        _check(
+            self.checkpoint_every >= 1, "profile.checkpoint_every", self.checkpoint_every, ">= 1"
+        )
+
+
+@dataclass
+class GridConfig:
+    """Evaluation grid (config group ``grid``). An empty list means the run's own value."""
+
+    name: str = "single"
+    mixes: list[float] = field(default_factory=list)
+    densities: list[str] = field(default_factory=list)
+    """Names of ``env`` presets (``sparse``, ``dense``)."""
+    radii: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for m in self.mixes:
+            _check(0 <= m <= 1, "grid.mixes", self.mixes, "every mix must lie in [0, 1]")
+        for r in self.radii:
+            _check(r > 0, "grid.radii", self.radii, "every radius must be positive")
+
+
+POLICIES = ("behavior_rich", "default")
+BASELINES = ("idle", "random", "left")
+
+
+@dataclass
+class ExperimentConfig(BaseConfig):
+    """Training, evaluation and the main job (``bgap.train``, ``bgap.evaluate``, ``bgap.run``)."""
+
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    profile: ProfileConfig = field(default_factory=ProfileConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
+    policy: str = "behavior_rich"
+    """``behavior_rich`` trains in the enriched traffic; ``default`` in stock traffic."""
+    mix_sampling: str = "fixed"
+    """Training mix: ``fixed`` (= ``mix``), ``uniform`` in [0, 1] or ``paper`` (one of the
+    paper's seven mixes) drawn anew each episode."""
+    root: str = "outputs"
+    """Every run folder and result lives under this output root."""
+    run_dir: Optional[str] = None
+    """Training run folder; default ``<root>/runs/<name derived from the config>``."""
+    resume: bool = False
+    """Continue an interrupted training run from its last checkpoint."""
+    models: list[str] = field(default_factory=list)
+    """``bgap.evaluate``: run folders (or model.zip files) to evaluate."""
+    baselines: list[str] = field(default_factory=lambda: ["idle", "random"])
+    """Scripted policies evaluated beside the models: idle, random, left."""
+    eval_seed: int = 100_000
+    """Evaluation episode k of every cell uses seed eval_seed + k, for every policy."""
+    workers: int = 2
+    """Evaluation worker processes."""
+    out: Optional[str] = None
+    """``bgap.evaluate`` / ``bgap.run`` results folder; default under ``<root>/results``."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(self.policy in POLICIES, "policy", self.policy, f"use one of {POLICIES}")
+        _check(
+            self.mix_sampling in ("fixed", "uniform", "paper"),
+            "mix_sampling",
+            self.mix_sampling,
+            "use fixed, uniform or paper",
+        )
+        for b in self.baselines:
+            _check(b in BASELINES, "baselines", self.baselines, f"each one of {BASELINES}")
+        _check(self.workers >= 1, "workers", self.workers, "must be >= 1")
+
+
 def register_configs() -> None:
     """Register the schemas; YAML files name them in their defaults list."""
     cs = ConfigStore.instance()
@@ -273,6 +421,10 @@ def register_configs() -> None:
     cs.store(group="reward", name="base_reward", node=RewardConfig)
     cs.store(group="cmetric", name="base_cmetric", node=CMetricConfig)
     cs.store(name="base_cmetric_app", node=CMetricAppConfig)
+    cs.store(name="base_experiment", node=ExperimentConfig)
+    cs.store(group="agent", name="base_agent", node=AgentConfig)
+    cs.store(group="profile", name="base_profile", node=ProfileConfig)
+    cs.store(group="grid", name="base_grid", node=GridConfig)
 
 
 def validate(cfg: DictConfig) -> Any:
@@ -303,22 +455,26 @@ def load(cfg: DictConfig) -> Any:
         raise SystemExit(f"bgap: configuration error: {err}") from None
 
 
+def env_preset(name: str) -> EnvConfig:
+    """The ``env`` group's preset ``name`` (``conf/env/<name>.yaml``) as an EnvConfig."""
+    path = Path(CONF_DIR) / "env" / f"{name}.yaml"
+    if not path.exists():
+        choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
+        raise ConfigError(f"density {name!r} has no preset conf/env/{name}.yaml; use {choices}")
+    values = OmegaConf.load(path)
+    values.pop("defaults", None)
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(EnvConfig), values))
+
+
 def env_config(cfg: BaseConfig | DictConfig) -> dict[str, Any]:
     """Translate a bgap config into highway-env's config dictionary for our environment."""
     if isinstance(cfg, DictConfig):
         cfg = validate(cfg)
+    from bgap.envs.highway import OBSERVATION
+
     e, r = cfg.env, cfg.reward
     return {
-        "observation": {
-            "type": "Kinematics",
-            "vehicles_count": e.observed_vehicles,
-            "features": ["presence", "x", "y", "vx", "vy"],
-            "absolute": False,
-            "normalize": True,
-            "clip": True,
-            "see_behind": True,
-            "order": "sorted",
-        },
+        "observation": {**OBSERVATION, "vehicles_count": e.observed_vehicles},
         "action": {"type": "DiscreteMetaAction", "target_speeds": list(e.ego_speeds)},
         "lanes_count": e.lanes_count,
         "vehicles_count": e.vehicles_count,

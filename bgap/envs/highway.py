@@ -60,6 +60,18 @@ PAPER_BEHAVIOR: dict[str, Any] = {
     },
 }
 
+# The paper's observation: presence, x, y, vx, vy of V vehicles (the ego's row first),
+# relative to the ego, normalised; vehicles behind are seen too.
+OBSERVATION: dict[str, Any] = {
+    "type": "Kinematics",
+    "features": ["presence", "x", "y", "vx", "vy"],
+    "absolute": False,
+    "normalize": True,
+    "clip": True,
+    "see_behind": True,
+    "order": "sorted",
+}
+
 REWARD_TERMS = ("collision_reward", "lane_change_reward", "right_lane_reward", "high_speed_reward")
 
 
@@ -88,16 +100,7 @@ class BehaviorHighwayEnv(HighwayEnv):
         config = super().default_config()
         config.update(
             {
-                "observation": {
-                    "type": "Kinematics",
-                    "vehicles_count": 5,
-                    "features": ["presence", "x", "y", "vx", "vy"],
-                    "absolute": False,
-                    "normalize": True,
-                    "clip": True,
-                    "see_behind": True,
-                    "order": "sorted",
-                },
+                "observation": {**OBSERVATION, "vehicles_count": 5},
                 "action": {"type": "DiscreteMetaAction", "target_speeds": [10, 15, 20, 25, 30]},
                 "lanes_count": 4,
                 "vehicles_count": 5,

@@ -1,0 +1,66 @@
+"""The main job: ``python -m bgap.run env=dense mix=0.6 [profile=paper]``.
+
+Trains (or reuses, when a finished run with the same config exists under ``root``) the
+behaviour-rich policy and the default policy for the chosen density, evaluates both with
+the scripted baselines on identical seeded episodes at the chosen mix and radius (or the
+``grid``), prints a comparison table like the paper's bars and writes, under
+``<root>/results/<name>/``: ``summary.csv`` / ``.json``, ``episodes.csv``,
+``comparison.png``, ``config.yaml`` and ``command.txt``.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig
+
+from bgap.config import CONF_DIR, POLICIES, ExperimentConfig, load, register_configs
+from bgap.evaluate import evaluate, format_table, plot_comparison, summarize, write_results
+from bgap.runs import save_run_metadata
+from bgap.train import run_dir_for, train, training_config
+
+
+def results_dir(cfg: ExperimentConfig) -> Path:
+    if cfg.out:
+        return Path(cfg.out)
+    name = (
+        f"{cfg.env.name}-mix{cfg.mix:g}-r{cfg.radius:g}-{cfg.grid.name}-{cfg.profile.name}"
+        f"-s{cfg.seed}"
+    )
+    return Path(cfg.root) / "results" / name
+
+
+def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
+    start = time.perf_counter()
+    models = {}
+    for policy in POLICIES:
+        pcfg = training_config(cfg, policy)
+        cached = (run_dir_for(pcfg) / "model.zip").exists()
+        print(f"[{policy}] {'reusing' if cached else 'training'} {run_dir_for(pcfg)}")
+        models[policy] = str(train(pcfg, None) / "model.zip")
+    out = results_dir(cfg)
+    if dcfg is not None:
+        save_run_metadata(out, dcfg)
+    policies = {**models, **{b: b for b in cfg.baselines}}
+    episodes = evaluate(cfg, policies)
+    summary = summarize(episodes)
+    write_results(out, episodes, summary)
+    title = f"{cfg.env.name}, behaviour {cfg.behavior.name}, {cfg.profile.name} profile"
+    plot_comparison(summary, out / "comparison.png", title)
+    print(format_table(summary))
+    print(f"results in {out} ({time.perf_counter() - start:.0f} s)")
+    return out
+
+
+register_configs()
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="run")
+def main(dcfg: DictConfig) -> None:
+    run(load(dcfg), dcfg)
+
+
+if __name__ == "__main__":
+    main()
