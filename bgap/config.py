@@ -134,7 +134,7 @@ class EnvConfig:
 class RewardConfig:
     """Weights of the reward terms R = r_C + r_LC + r_RL + r_HS (config group ``reward``)."""
 
-    name: str = "authors"
+    name: str = "highway"
     collision: float = -1.0
     lane_change: float = 0.0
     right_lane: float = 0.1
