@@ -76,8 +76,12 @@ def load_policy(spec: str) -> tuple[Policy, int | None]:
     from bgap.agents.dqn import DQN
 
     model = DQN.load(model_path(spec), device="cpu")
-    rows = model.observation_space.shape[0]
-    return (lambda obs, rng: int(model.predict(obs, deterministic=True)[0])), rows
+    return greedy(model), model.observation_space.shape[0]
+
+
+def greedy(model) -> Policy:
+    """A trained model as a policy: its greedy (deterministic) action."""
+    return lambda obs, rng: int(model.predict(obs, deterministic=True)[0])
 
 
 def model_path(spec: str | Path) -> Path:

@@ -39,7 +39,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
         pcfg = training_config(cfg, policy)
         cached = (run_dir_for(pcfg) / "model.zip").exists()
         print(f"[{policy}] {'reusing' if cached else 'training'} {run_dir_for(pcfg)}")
-        models[policy] = str(train(pcfg, None) / "model.zip")
+        models[policy] = str(train(pcfg) / "model.zip")
     out = results_dir(cfg)
     if dcfg is not None:
         save_run_metadata(out, dcfg)

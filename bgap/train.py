@@ -182,14 +182,10 @@ class Progress(BaseCallback):
             self.periodic_evaluation()
 
     def periodic_evaluation(self) -> None:
-        from bgap.evaluate import run_episode
+        from bgap.evaluate import greedy, run_episode
 
         env = gym.make(ENV_ID, config=env_config(self.cfg))
-        model = self.model
-
-        def policy(obs, rng):
-            return int(model.predict(obs, deterministic=True)[0])
-
+        policy = greedy(self.model)
         rows = [
             run_episode(env, policy, self.cfg.eval_seed + k)
             for k in range(self.cfg.profile.eval_during_training)
@@ -222,7 +218,7 @@ class Progress(BaseCallback):
         self._last_ckpt = self.num_timesteps
 
 
-def train(cfg: ExperimentConfig, dcfg: DictConfig | None = None, progress: bool = True) -> Path:
+def train(cfg: ExperimentConfig, progress: bool = True) -> Path:
     """Train ``cfg.policy`` (resuming if ``cfg.resume``); returns the run folder."""
     import torch
 
@@ -232,7 +228,9 @@ def train(cfg: ExperimentConfig, dcfg: DictConfig | None = None, progress: bool 
     resuming = cfg.resume and (ckpt / "state.json").exists()
     if (run_dir / "model.zip").exists() and not resuming:
         return run_dir  # finished already
-    save_run_metadata(run_dir, dcfg if dcfg is not None else OmegaConf.structured(cfg))
+    # The config it trains under: for policy=default that is the stock traffic, not the
+    # composed behaviour preset.
+    save_run_metadata(run_dir, OmegaConf.structured(cfg))
     torch.set_num_threads(1)  # small MLP: threads cost more than they give; keeps runs exact
     env = make_training_env(cfg, cfg.profile.n_envs, cfg.seed)
     state = {"episodes": 0, "steps": 0}
@@ -275,7 +273,7 @@ register_configs()
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="train")
 def main(dcfg: DictConfig) -> None:
     cfg: ExperimentConfig = load(dcfg)
-    run_dir = train(cfg, dcfg)
+    run_dir = train(cfg)
     print(f"model: {run_dir / 'model.zip'}")
 
 
