@@ -1,6 +1,8 @@
 """Benchmarks, run by hand (never by the test suite): they print figures.
 
     python -m bgap.bench env        # policy steps/s of our environment vs highway-v0
+    python -m bgap.bench sim        # vectorised backend vs highway-env vs EnvPool (optional:
+                                    # pip install -e ".[bench]"), both cores
     python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
                                     # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
 
@@ -149,6 +151,77 @@ def bench_cmetric(seconds: float) -> None:
     )
 
 
+def _vector_steps_per_second(config: dict, num_envs: int, seconds: float) -> float:
+    from bgap.sim.vector import VectorHighway
+
+    venv = VectorHighway(config, num_envs)
+    venv.reset(seed=0)
+    rng = np.random.default_rng(0)
+    venv.step(rng.integers(5, size=num_envs))  # compile / load the cached kernels
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        venv.step(rng.integers(5, size=num_envs))
+        steps += num_envs
+    return steps / (time.perf_counter() - start)
+
+
+def _envpool_steps_per_second(
+    n: int, rows: int, num_envs: int, threads: int, seconds: float
+) -> float | None:
+    try:
+        import envpool
+    except ImportError:
+        return None
+    env = envpool.make_gymnasium(
+        "Highway-v0",
+        num_envs=num_envs,
+        batch_size=num_envs,
+        num_threads=threads,
+        seed=0,
+        lanes_count=4,
+        vehicles_count=n,
+        observation_vehicles_count=rows,
+        duration=60,
+        max_episode_steps=60,
+        simulation_frequency=15,
+        policy_frequency=1,
+    )
+    env.reset()
+    rng = np.random.default_rng(0)
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        env.step(rng.integers(5, size=num_envs))
+        steps += num_envs
+    return steps / (time.perf_counter() - start)
+
+
+def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
+    """Policy steps/s, random ego actions, dense and sparse, of highway-env (one env, the
+    reference), bgap's vectorised backend (``num_envs`` envs on ``threads`` threads) and
+    EnvPool's C++ Highway-v0 at the same settings (when installed)."""
+    import numba
+
+    from bgap.config import compose, env_config, validate
+    from bgap.envs import make_env
+
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    print(f"{num_envs} envs, {threads} threads, random ego actions, policy steps/s")
+    head = f"{'scenario':<9}{'highway-env':>13}{'vector':>11}{'EnvPool':>11}"
+    print(f"{head}{'vector/highway':>16}{'vector/EnvPool':>16}")
+    for density in ("dense", "sparse"):
+        cfg = validate(compose("simulate", [f"env={density}"]))
+        config = env_config(cfg)
+        ref = steps_per_second(make_env(cfg), seconds)
+        vec = _vector_steps_per_second(config, num_envs, seconds)
+        pool = _envpool_steps_per_second(
+            cfg.env.vehicles_count, cfg.env.observed_vehicles, num_envs, threads, seconds
+        )
+        pool_s = f"{pool:>11.0f}" if pool else f"{'n/a':>11}"
+        ratio = f"{vec / pool:>16.2f}" if pool else f"{'n/a':>16}"
+        print(f"{density:<9}{ref:>13.1f}{vec:>11.0f}{pool_s}{vec / ref:>16.0f}{ratio}")
+    print("EnvPool has no behaviour classes (its traffic is highway-env's stock IDM).")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m bgap.bench", description=__doc__)
     parser.add_argument("what", choices=sorted(BENCHES))
@@ -157,7 +230,11 @@ def main(argv: list[str] | None = None) -> None:
     BENCHES[args.what](args.seconds)
 
 
-BENCHES: dict[str, Callable[[float], None]] = {"env": bench_env, "cmetric": bench_cmetric}
+BENCHES: dict[str, Callable[[float], None]] = {
+    "env": bench_env,
+    "cmetric": bench_cmetric,
+    "sim": bench_sim,
+}
 
 if __name__ == "__main__":
     main()

@@ -37,7 +37,8 @@ from bgap.config import (
 )
 
 IDLE, LANE_LEFT = 1, 0
-Policy = Callable[[np.ndarray, np.random.Generator], int]
+Policy = Callable[[np.ndarray, list[np.random.Generator]], np.ndarray]
+"""A batch of observations (B, V, 5) and one random stream per episode -> B actions."""
 
 
 @dataclass(frozen=True)
@@ -68,11 +69,11 @@ def load_policy(spec: str) -> tuple[Policy, int | None]:
     """A scripted baseline name or a model path; returns the policy and the number of
     observation rows it expects (None: any)."""
     if spec == "idle":
-        return (lambda obs, rng: IDLE), None
+        return (lambda obs, rngs: np.full(len(obs), IDLE)), None
     if spec == "left":
-        return (lambda obs, rng: LANE_LEFT), None
+        return (lambda obs, rngs: np.full(len(obs), LANE_LEFT)), None
     if spec == "random":
-        return (lambda obs, rng: int(rng.integers(5))), None
+        return (lambda obs, rngs: np.array([r.integers(5) for r in rngs])), None
     from bgap.agents.dqn import DQN
 
     model = DQN.load(model_path(spec), device="cpu")
@@ -80,8 +81,8 @@ def load_policy(spec: str) -> tuple[Policy, int | None]:
 
 
 def greedy(model) -> Policy:
-    """A trained model as a policy: its greedy (deterministic) action."""
-    return lambda obs, rng: int(model.predict(obs, deterministic=True)[0])
+    """A trained model as a policy: its greedy (deterministic) actions, one batched call."""
+    return lambda obs, rngs: np.asarray(model.predict(obs, deterministic=True)[0]).reshape(-1)
 
 
 def model_path(spec: str | Path) -> Path:
@@ -94,12 +95,14 @@ def model_path(spec: str | Path) -> Path:
 
 
 def run_episode(env, policy: Policy, seed: int) -> dict[str, Any]:
-    """One seeded episode; the policy's own randomness is seeded by the episode too."""
-    rng = np.random.default_rng(seed)
+    """One seeded episode on a highway-env environment; the policy's own randomness is
+    seeded by the episode too."""
+    rngs = [np.random.default_rng(seed)]
     obs, _ = env.reset(seed=seed)
     speeds, lane_changes, total, done, info = [], 0, 0.0, False, {}
     while not done:
-        obs, reward, terminated, truncated, info = env.step(policy(obs, rng))
+        action = int(policy(obs[None], rngs)[0])
+        obs, reward, terminated, truncated, info = env.step(action)
         speeds.append(info["ego_speed"])
         lane_changes += int(info["lane_change"])
         total += float(reward)
@@ -113,28 +116,65 @@ def run_episode(env, policy: Policy, seed: int) -> dict[str, Any]:
     }
 
 
-def _evaluate_chunk(name: str, spec: str, cell: Cell, env_cfg: dict, seeds: list[int]) -> list:
+def run_episodes_vector(env_cfg: dict, policy: Policy, seeds: list[int]) -> list[dict[str, Any]]:
+    """The episodes ``seeds`` played side by side on the vectorised backend (one env each;
+    an env that finishes early idles in its next episode, which is not counted)."""
+    from bgap.sim.vector import VectorHighway
+
+    venv = VectorHighway(env_cfg, len(seeds))
+    obs, _ = venv.reset(seed=list(seeds))
+    rngs = [np.random.default_rng(seed) for seed in seeds]
+    b = len(seeds)
+    live = np.ones(b, dtype=bool)
+    speed_sum, steps, lanes = np.zeros(b), np.zeros(b, dtype=int), np.zeros(b, dtype=int)
+    total, crashed = np.zeros(b), np.zeros(b, dtype=bool)
+    while live.any():
+        actions = np.full(b, IDLE)
+        idx = np.flatnonzero(live)
+        actions[idx] = policy(obs[idx], [rngs[i] for i in idx])
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        speed_sum[idx] += info["ego_speed"][idx]
+        steps[idx] += 1
+        lanes[idx] += info["lane_change"][idx]
+        total[idx] += reward[idx]
+        crashed[idx] = info["crashed"][idx]
+        live &= ~(terminated | truncated)
+    return [
+        {
+            "crashed": bool(crashed[i]),
+            "avg_speed": float(speed_sum[i] / steps[i]),
+            "lane_changes": int(lanes[i]),
+            "steps": int(steps[i]),
+            "return": float(total[i]),
+        }
+        for i in range(b)
+    ]
+
+
+def play(env_cfg: dict, policy: Policy, seeds: list[int], backend: str) -> list[dict[str, Any]]:
+    """Seeded episodes of ``policy`` on either backend, one result dict per seed."""
+    if backend == "vector":
+        return run_episodes_vector(env_cfg, policy, seeds)
     import gymnasium as gym
 
-    import bgap.envs  # noqa: F401  (registers the environment in a fresh worker)
+    import bgap.envs
 
+    env = gym.make(bgap.envs.ENV_ID, config=env_cfg)
+    try:
+        return [run_episode(env, policy, seed) for seed in seeds]
+    finally:
+        env.close()
+
+
+def _evaluate_chunk(
+    name: str, spec: str, cell: Cell, env_cfg: dict, seeds: list[int], backend: str = "highway"
+) -> list:
     policy, rows = load_policy(spec)
     if rows is not None and rows != env_cfg["observation"]["vehicles_count"]:
         return []  # a model sees a fixed number of vehicles: only its own density
-    env = gym.make(bgap.envs.ENV_ID, config=env_cfg)
-    out = []
-    for seed in seeds:
-        row = {
-            "policy": name,
-            "mix": cell.mix,
-            "density": cell.density,
-            "radius": cell.radius,
-            "seed": seed,
-        }
-        row.update(run_episode(env, policy, seed))
-        out.append(row)
-    env.close()
-    return out
+    key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}
+    results = play(env_cfg, policy, seeds, backend)
+    return [{**key, "seed": seed, **r} for seed, r in zip(seeds, results, strict=True)]
 
 
 def evaluate(
@@ -152,16 +192,20 @@ def evaluate(
     cells = list(cells or grid_cells(cfg))
     episodes = episodes or cfg.profile.eval_episodes
     seeds = [cfg.eval_seed + k for k in range(episodes)]
+    if cfg.backend == "vector":  # one batch per cell and policy, compiled threads in-process
+        chunk, workers = episodes, 1
+    else:
+        workers = cfg.workers
     jobs = [
-        (name, spec, cell, cell_env_config(cfg, cell), seeds[i : i + chunk])
+        (name, spec, cell, cell_env_config(cfg, cell), seeds[i : i + chunk], cfg.backend)
         for cell in cells
         for name, spec in policies.items()
         for i in range(0, episodes, chunk)
     ]
     rows: list[dict] = []
     bar = tqdm(total=len(jobs) * chunk, unit="ep", desc="evaluate", disable=not progress)
-    if cfg.workers > 1:
-        with ProcessPoolExecutor(cfg.workers, mp_context=get_context("fork")) as pool:
+    if workers > 1:
+        with ProcessPoolExecutor(workers, mp_context=get_context("fork")) as pool:
             for part in pool.map(_evaluate_chunk, *zip(*jobs, strict=True)):
                 rows.extend(part)
                 bar.update(chunk)

@@ -123,3 +123,31 @@ class TrajectoryRecorder:
         path.parent.mkdir(parents=True, exist_ok=True)
         self.to_frame().to_parquet(path, index=False)
         return path
+
+
+def table_from_states(
+    states: np.ndarray, labels: list[str], episode: int, dt: float
+) -> pd.DataFrame:
+    """The schema's table from one episode's frames ``states`` (frames, vehicles, 7: x, y,
+    vx, vy, speed, lane, crashed; the vectorised backend's layout), vehicle 0 the ego."""
+    t, n = states.shape[:2]
+    frame = np.repeat(np.arange(t, dtype=np.int32), n)
+    vid = np.tile(np.arange(n, dtype=np.int32), t)
+    flat = states.reshape(t * n, -1)
+    return pd.DataFrame(
+        {
+            "episode": np.full(t * n, episode, dtype=np.int32),
+            "frame": frame,
+            "time": frame * dt,
+            "vehicle_id": vid,
+            "label": np.tile(np.asarray(labels, dtype=object), t).astype(str),
+            "is_ego": vid == 0,
+            "x": flat[:, 0],
+            "y": flat[:, 1],
+            "vx": flat[:, 2],
+            "vy": flat[:, 3],
+            "speed": flat[:, 4],
+            "lane": flat[:, 5].astype(np.int16),
+            "crashed": flat[:, 6].astype(bool),
+        }
+    )

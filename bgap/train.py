@@ -32,6 +32,7 @@ from bgap.agents.dqn import DQN
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.config import (
     CONF_DIR,
+    PAPER_MIXES,
     BehaviorConfig,
     ExperimentConfig,
     env_config,
@@ -40,8 +41,6 @@ from bgap.config import (
 )
 from bgap.envs import ENV_ID
 from bgap.runs import save_run_metadata
-
-PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
 
 
 def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
@@ -57,7 +56,17 @@ def run_name(cfg: ExperimentConfig) -> str:
     """Readable prefix plus a hash of everything that changes what is learnt."""
     keys = {
         k: asdict(cfg)[k]
-        for k in ("env", "behavior", "reward", "agent", "radius", "seed", "policy", "mix_sampling")
+        for k in (
+            "env",
+            "behavior",
+            "reward",
+            "agent",
+            "radius",
+            "seed",
+            "policy",
+            "mix_sampling",
+            "backend",
+        )
     }
     keys["mix"] = cfg.mix if cfg.policy == "behavior_rich" else None
     keys["profile"] = {
@@ -91,7 +100,18 @@ class MixSampler(gym.Wrapper):
 
 
 def make_training_env(cfg: ExperimentConfig, n_envs: int, seed: int):
+    """``n_envs`` training environments as an SB3 VecEnv: subprocesses of highway-env, or
+    one batched :class:`~bgap.sim.vector.VectorHighway` for ``backend=vector``."""
     config = env_config(cfg)
+    if cfg.backend == "vector":
+        from stable_baselines3.common.vec_env import VecMonitor
+
+        from bgap.sim.sb3 import SB3VecEnv
+        from bgap.sim.vector import VectorHighway
+
+        venv = SB3VecEnv(VectorHighway(config, n_envs, mix_sampling=cfg.mix_sampling))
+        venv.seed(seed)
+        return VecMonitor(venv)
     wrapper = (lambda e: MixSampler(e, cfg.mix_sampling)) if cfg.mix_sampling != "fixed" else None
     vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
     kwargs = {"start_method": "fork"} if n_envs > 1 else {}
@@ -182,15 +202,10 @@ class Progress(BaseCallback):
             self.periodic_evaluation()
 
     def periodic_evaluation(self) -> None:
-        from bgap.evaluate import greedy, run_episode
+        from bgap.evaluate import greedy, play
 
-        env = gym.make(ENV_ID, config=env_config(self.cfg))
-        policy = greedy(self.model)
-        rows = [
-            run_episode(env, policy, self.cfg.eval_seed + k)
-            for k in range(self.cfg.profile.eval_during_training)
-        ]
-        env.close()
+        seeds = [self.cfg.eval_seed + k for k in range(self.cfg.profile.eval_during_training)]
+        rows = play(env_config(self.cfg), greedy(self.model), seeds, self.cfg.backend)
         frame = pd.DataFrame(rows)
         record = {
             "episodes": self.state["episodes"],

@@ -111,12 +111,13 @@ def _short(tmp_path, *extra):
     )
 
 
-def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch):
+@pytest.mark.parametrize("backend", ["vector", "highway"])
+def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch, backend):
     import json
 
     from bgap import train as train_mod
 
-    cfg = replace(_short(tmp_path), run_dir=str(tmp_path / "run"))
+    cfg = replace(_short(tmp_path, f"backend={backend}"), run_dir=str(tmp_path / "run"))
     original = train_mod.Progress._on_step
 
     def interrupt(self):
@@ -149,12 +150,13 @@ def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch):
     assert final["episodes"] > state["episodes"]
 
 
-def test_same_seed_reproduces_training_and_evaluation(tmp_path):
+@pytest.mark.parametrize("backend", ["vector", "highway"])
+def test_same_seed_reproduces_training_and_evaluation(tmp_path, backend):
     from bgap.train import train
 
-    a = train(replace(_short(tmp_path), run_dir=str(tmp_path / "a")), progress=False)
-    b = train(replace(_short(tmp_path), run_dir=str(tmp_path / "b")), progress=False)
-    cfg = _short(tmp_path, "workers=1")
+    cfg = _short(tmp_path, f"backend={backend}", "workers=1")
+    a = train(replace(cfg, run_dir=str(tmp_path / "a")), progress=False)
+    b = train(replace(cfg, run_dir=str(tmp_path / "b")), progress=False)
     cell = [Cell(0.5, "sparse", 180.0)]
     ea = evaluate(cfg, {"m": str(a)}, cell, episodes=3, progress=False)
     eb = evaluate(cfg, {"m": str(b)}, cell, episodes=3, progress=False)
@@ -179,3 +181,36 @@ def test_short_training_beats_random_on_collisions(tmp_path):
     rate = episodes.groupby("policy").crashed.mean()
     assert rate["dqn"] < rate["random"], rate.to_dict()
     assert np.isfinite(episodes.avg_speed).all()
+
+
+@pytest.mark.slow
+def test_training_on_the_vector_backend_transfers_to_highway_env(tmp_path):
+    """Equal steps of training on either backend, both evaluated on highway-env on the same
+    seeds: the collision rates' 95% intervals overlap and both beat a random policy."""
+    from bgap.evaluate import summarize
+    from bgap.train import train
+
+    runs = {}
+    for backend in ("vector", "highway"):
+        cfg = exp_cfg(
+            "env=sparse",
+            "mix=0.5",
+            "profile.train_steps=3000",
+            f"root={tmp_path}",
+            "seed=3",
+            f"backend={backend}",
+        )
+        runs[backend] = str(train(cfg, progress=False))
+    cfg = exp_cfg("env=sparse", "mix=0.5", "backend=highway", f"root={tmp_path}")
+    episodes = evaluate(
+        cfg,
+        {**runs, "random": "random"},
+        [Cell(0.5, "sparse", 180.0)],
+        episodes=100,
+        progress=False,
+    )
+    s = summarize(episodes).set_index("policy")
+    assert s.loc["vector", "collision_lo"] <= s.loc["highway", "collision_hi"]
+    assert s.loc["highway", "collision_lo"] <= s.loc["vector", "collision_hi"]
+    for backend in runs:
+        assert s.loc[backend, "collision_pct"] < s.loc["random", "collision_pct"], s

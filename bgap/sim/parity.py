@@ -1,0 +1,214 @@
+"""Statistical parity of the two backends: ``python -m bgap.sim.parity``.
+
+Runs the same number of seeded episodes on highway-env (``backend=highway``) and on the
+vectorised simulator (``backend=vector``) for several mixes, with a fixed scripted ego
+policy, and compares per class the mean vehicle speed and lane changes per vehicle-minute,
+and the ego collision rate, with 95% confidence intervals. Writes ``parity.csv`` and
+``parity.png`` to ``--out``. Both backends are measured from per-frame states in the same
+way (:func:`episode_stats`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bgap.sim.core import AGGRESSIVE, CONSERVATIVE, LABEL
+
+# The scripted ego: a fixed cycle of meta-actions (indexed by the policy step), busy enough
+# to crash now and then in dense traffic.
+SCRIPT = (3, 0, 1, 2, 4, 1, 2, 0)
+
+
+def scripted_action(step: int) -> int:
+    return SCRIPT[step % len(SCRIPT)]
+
+
+def episode_stats(
+    speeds: np.ndarray, lanes: np.ndarray, labels: np.ndarray, dt: float, crashed: bool
+) -> dict[str, float]:
+    """Per-class mean speed and lane changes per vehicle-minute of one episode.
+
+    ``speeds`` and ``lanes`` are (frames, vehicles) for the background vehicles, ``labels``
+    their class codes (:mod:`bgap.sim.core`)."""
+    minutes = (lanes.shape[0] - 1) * dt / 60.0
+    changes = (np.diff(lanes, axis=0) != 0).sum(axis=0)
+    out: dict[str, float] = {"crashed": float(crashed)}
+    for code, name in ((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive")):
+        cols = labels == code
+        if cols.any() and minutes > 0:
+            out[f"speed_{name}"] = float(speeds[:, cols].mean())
+            out[f"lane_changes_{name}"] = float(changes[cols].sum() / (cols.sum() * minutes))
+        else:
+            out[f"speed_{name}"] = np.nan
+            out[f"lane_changes_{name}"] = np.nan
+    return out
+
+
+def run_highway(config: dict, seeds: list[int]) -> pd.DataFrame:
+    """Episodes on highway-env, states read after every frame."""
+    import gymnasium as gym
+
+    from bgap.envs import ENV_ID
+    from bgap.sim.vector import scene_from_highway
+
+    env = gym.make(ENV_ID, config=config).unwrapped
+    frames: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def listen(e) -> None:
+        vehicles = e.road.vehicles[1:]
+        frames.append(
+            (np.array([v.speed for v in vehicles]), np.array([v.lane_index[2] for v in vehicles]))
+        )
+
+    env.frame_listeners.append(listen)
+    rows = []
+    for seed in seeds:
+        frames.clear()
+        env.reset(seed=seed)
+        labels = scene_from_highway(env).g[1:, LABEL]
+        step, done, crashed = 0, False, False
+        while not done:
+            _, _, term, trunc, info = env.step(scripted_action(step))
+            step, done, crashed = step + 1, term or trunc, bool(info["crashed"])
+        speeds = np.stack([s for s, _ in frames])
+        lanes = np.stack([lane for _, lane in frames])
+        dt = 1.0 / env.config["simulation_frequency"]
+        rows.append({"seed": seed, **episode_stats(speeds, lanes, labels, dt, crashed)})
+    return pd.DataFrame(rows)
+
+
+def run_vector(config: dict, seeds: list[int], batch: int = 64) -> pd.DataFrame:
+    """Episodes on the vectorised backend, ``batch`` at a time, frames recorded."""
+    from bgap.sim.vector import RECORD_FIELDS, VectorHighway
+
+    speed_col, lane_col = RECORD_FIELDS.index("speed"), RECORD_FIELDS.index("lane")
+    rows = []
+    for start in range(0, len(seeds), batch):
+        chunk = seeds[start : start + batch]
+        venv = VectorHighway(config, len(chunk), record=True)
+        venv.reset(seed=chunk)
+        labels = venv.g[:, 1:, LABEL].copy()
+        speeds = [[venv.f[b, 1:, 3].copy()] for b in range(len(chunk))]
+        lanes = [[venv.g[b, 1:, 0].astype(float)] for b in range(len(chunk))]
+        live = np.ones(len(chunk), dtype=bool)
+        crashed = np.zeros(len(chunk), dtype=bool)
+        step = 0
+        while live.any():
+            actions = np.full(len(chunk), scripted_action(step))
+            _, _, term, trunc, _ = venv.step(actions)
+            for b in np.flatnonzero(live):
+                speeds[b].extend(venv.frames[b, :, 1:, speed_col])
+                lanes[b].extend(venv.frames[b, :, 1:, lane_col])
+                if term[b] or trunc[b]:
+                    live[b], crashed[b] = False, bool(term[b])
+            step += 1
+        for b, seed in enumerate(chunk):
+            stats = episode_stats(
+                np.stack(speeds[b]), np.stack(lanes[b]), labels[b], venv.dt, crashed[b]
+            )
+            rows.append({"seed": seed, **stats})
+    return pd.DataFrame(rows)
+
+
+def compare(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per mix, metric and backend: mean and 95% CI; per mix and metric: whether the
+    backends' intervals overlap."""
+    from bgap.evaluate import _t_interval, _wilson
+
+    rows = []
+    metrics = [c for c in episodes.columns if c not in ("seed", "mix", "backend")]
+    for (mix, backend), group in episodes.groupby(["mix", "backend"]):
+        for metric in metrics:
+            x = group[metric].dropna().to_numpy()
+            if metric == "crashed":
+                k = int(x.sum())
+                lo, hi = _wilson(k, len(x))
+                mean = k / max(len(x), 1)
+            else:
+                mean = float(x.mean()) if len(x) else np.nan
+                lo, hi = _t_interval(x) if len(x) > 1 else (np.nan, np.nan)
+            rows.append(
+                {
+                    "mix": mix,
+                    "backend": backend,
+                    "metric": metric,
+                    "n": len(x),
+                    "mean": mean,
+                    "ci_low": lo,
+                    "ci_high": hi,
+                }
+            )
+    table = pd.DataFrame(rows)
+    wide = table.pivot_table(
+        index=["mix", "metric"], columns="backend", values=["mean", "ci_low", "ci_high"]
+    )
+    overlap = (wide[("ci_low", "vector")] <= wide[("ci_high", "highway")]) & (
+        wide[("ci_low", "highway")] <= wide[("ci_high", "vector")]
+    )
+    table = table.merge(overlap.rename("overlap").reset_index(), on=["mix", "metric"])
+    return table
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = list(dict.fromkeys(table["metric"]))
+    fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics), 3.2))
+    for ax, metric in zip(np.atleast_1d(axes), metrics, strict=True):
+        for k, (backend, color) in enumerate((("highway", "tab:blue"), ("vector", "tab:orange"))):
+            t = table[(table.metric == metric) & (table.backend == backend)].sort_values("mix")
+            x = t["mix"].to_numpy() + (k - 0.5) * 0.04
+            err = [t["mean"] - t["ci_low"], t["ci_high"] - t["mean"]]
+            ax.errorbar(x, t["mean"], yerr=err, fmt="o", color=color, label=backend, capsize=3)
+        ax.set_title(metric, fontsize=9)
+        ax.set_xlabel("mix")
+    np.atleast_1d(axes)[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    from tqdm.auto import tqdm
+
+    from bgap.config import compose, env_config, validate
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--env", default="dense")
+    parser.add_argument("--mixes", default="0,0.5,1")
+    parser.add_argument("--episodes", type=int, default=200)
+    parser.add_argument("--duration", type=float, default=None, help="episode length [s]")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default="results/parity")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    frames = []
+    mixes = [float(m) for m in args.mixes.split(",")]
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    for mix in tqdm(mixes, desc="mixes"):
+        overrides = [f"env={args.env}", f"mix={mix}"]
+        if args.duration:
+            overrides.append(f"env.duration={args.duration}")
+        config = env_config(validate(compose("simulate", overrides)))
+        for backend, run in (("vector", run_vector), ("highway", run_highway)):
+            df = run(config, seeds)
+            df["mix"], df["backend"] = mix, backend
+            frames.append(df)
+            pd.concat(frames).to_csv(out / "episodes.csv", index=False)
+    table = compare(pd.concat(frames))
+    table.to_csv(out / "parity.csv", index=False)
+    plot(table, out / "parity.png")
+    with pd.option_context("display.width", 160, "display.max_rows", 100):
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+if __name__ == "__main__":
+    main()

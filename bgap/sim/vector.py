@@ -1,0 +1,424 @@
+"""``VectorHighway``: B behaviour-rich highways advanced together (``backend=vector``).
+
+The same traffic model as :class:`bgap.envs.highway.BehaviorHighwayEnv` (highway-env is the
+reference), kept in arrays and stepped by the numba kernels of :mod:`bgap.sim.core`. It
+takes the same highway-env config dictionary (:func:`bgap.config.env_config`), follows the
+gymnasium vector-env API with same-step auto-reset, and loads highway-env scenes
+(:func:`scene_from_highway`) so that the two can be compared from identical starts.
+
+Known differences from highway-env (README "Vectorised backend"):
+- initial scenes are drawn from the same distributions with a different random stream, so a
+  seed gives a different (equally likely) scene than highway-env's for the same seed;
+- ``info`` describes the step just taken, also for an env that was reset in that step (its
+  final observation is in ``info["final_obs"]``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
+
+from bgap.behaviors import count_aggressive
+from bgap.config import PAPER_MIXES
+from bgap.sim import core
+from bgap.sim.core import (
+    ACC,
+    AGGRESSIVE,
+    CONSERVATIVE,
+    CRASHED,
+    EGO,
+    HEADING,
+    LABEL,
+    LANE,
+    LANE_WIDTH,
+    N_FLOAT,
+    N_INT,
+    N_PARAM,
+    SPEED,
+    SPEED_INDEX,
+    STEER,
+    TARGET_LANE,
+    TARGET_SPEED,
+    TIMER,
+    X,
+    Y,
+)
+
+LABEL_NAMES = {EGO: "ego", CONSERVATIVE: "conservative", AGGRESSIVE: "aggressive"}
+_CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
+
+# highway-env's IDMVehicle defaults, in core.P_* order (DISTANCE_WANTED = 5 m + LENGTH).
+IDM_DEFAULTS = np.array([1.5, 10.0, 3.0, 5.0, 4.0, 0.0, 0.2, 2.0, 6.0, 40.0, 0.0])
+# DriverParams field -> (parameter column, conversion from the paper's units)
+_PARAM_FIELDS = {
+    "time_gap": (core.P_T, lambda v: v),
+    "min_distance": (core.P_D0, lambda v: v + core.LENGTH),
+    "acc": (core.P_A, lambda v: v),
+    "dec": (core.P_B, lambda v: v),
+    "delta": (core.P_DELTA, lambda v: v),
+    "politeness": (core.P_POLITENESS, lambda v: v),
+    "min_acc_gain": (core.P_GAIN, lambda v: v),
+    "b_safe": (core.P_BSAFE, lambda v: v),
+    "acc_max": (core.P_AMAX, lambda v: v),
+}
+RECORD_FIELDS = ("x", "y", "vx", "vy", "speed", "lane", "crashed")
+
+
+def _is_stock(params: dict[str, Any]) -> bool:
+    return all(params.get(k) is None for k in (*_PARAM_FIELDS, "v0"))
+
+
+def check_supported(config: dict[str, Any]) -> None:
+    """Fail clearly on highway-env options the vectorised model does not implement."""
+    obs = config["observation"]
+    expected = {
+        "type": "Kinematics",
+        "absolute": False,
+        "normalize": True,
+        "clip": True,
+        "see_behind": True,
+        "order": "sorted",
+    }
+    for key, value in expected.items():
+        if obs.get(key, value) != value:
+            raise ValueError(
+                f"backend=vector supports observation.{key}={value!r} only (got {obs[key]!r}); "
+                "use backend=highway for other observations"
+            )
+    if list(obs.get("features", [])) != ["presence", "x", "y", "vx", "vy"]:
+        raise ValueError("backend=vector observes features presence, x, y, vx, vy only")
+    if config["action"]["type"] != "DiscreteMetaAction":
+        raise ValueError("backend=vector supports the DiscreteMetaAction ego only")
+    if config.get("controlled_vehicles", 1) != 1:
+        raise ValueError("backend=vector supports one controlled vehicle")
+    sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
+    if sim % pol:
+        raise ValueError("simulation_frequency must be a multiple of policy_frequency")
+
+
+def full_config(config: dict[str, Any]) -> dict[str, Any]:
+    """The environment's default config updated with ``config`` (as highway-env does)."""
+    from bgap.envs.highway import BehaviorHighwayEnv
+
+    full = BehaviorHighwayEnv.default_config()
+    for key, value in config.items():
+        if isinstance(value, dict) and isinstance(full.get(key), dict):
+            full[key] = {**full[key], **value}
+        else:
+            full[key] = value
+    return full
+
+
+@dataclass
+class Scene:
+    """One environment's state in the kernel layout (ego first), for loading and saving."""
+
+    f: np.ndarray  # (n + 1, N_FLOAT)
+    g: np.ndarray  # (n + 1, N_INT)
+    p: np.ndarray  # (n + 1, N_PARAM)
+    steps: int = 0
+
+
+class VectorHighway(gym.vector.VectorEnv):
+    """``num_envs`` behaviour-rich highways in lock step.
+
+    Args:
+        config: highway-env config dictionary of ``bgap/BehaviorHighway-v0``
+            (:func:`bgap.config.env_config`); missing keys take that env's defaults.
+        num_envs: B.
+        record: keep every simulation frame of the last step in :attr:`frames`
+            (``(B, frames_per_step, n + 1, 7)``, fields :data:`RECORD_FIELDS`), for recording.
+        mix_sampling: ``fixed`` (the config's mix), ``uniform`` in [0, 1] or ``paper`` (one
+            of the paper's mixes), drawn per env at every reset from its own stream.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(
+        self,
+        config: dict[str, Any],
+        num_envs: int,
+        record: bool = False,
+        mix_sampling: str = "fixed",
+    ) -> None:
+        self.config = full_config(config)
+        check_supported(self.config)
+        cfg = self.config
+        mix = float(cfg["mix"])
+        if not 0.0 <= mix <= 1.0:
+            raise ValueError(f"mix={mix!r} is invalid: must lie in [0, 1] (fraction aggressive)")
+        self.num_envs = int(num_envs)
+        if self.num_envs < 1:
+            raise ValueError(f"num_envs={num_envs!r} is invalid: must be >= 1")
+        self.lanes = int(cfg["lanes_count"])
+        self.n = int(cfg["vehicles_count"])
+        if mix_sampling not in ("fixed", "uniform", "paper"):
+            raise ValueError(f"mix_sampling={mix_sampling!r}: use fixed, uniform or paper")
+        self.mix_sampling = mix_sampling
+        self.n_aggressive = np.full(num_envs, count_aggressive(mix, self.n))
+        self.radius = float(cfg["perception_radius"])
+        self.rows = int(cfg["observation"]["vehicles_count"])
+        self.frames_per_step = int(cfg["simulation_frequency"]) // int(cfg["policy_frequency"])
+        self.dt = 1.0 / float(cfg["simulation_frequency"])
+        self.max_steps = int(np.ceil(float(cfg["duration"]) * int(cfg["policy_frequency"]) - 1e-9))
+        self.speeds = np.asarray(cfg["action"].get("target_speeds", [20, 25, 30]), dtype=float)
+        self.behavior = cfg["behavior"]
+        n_veh, b = self.n + 1, self.num_envs
+        self.f = np.zeros((b, n_veh, N_FLOAT))
+        self.g = np.zeros((b, n_veh, N_INT), dtype=np.int64)
+        self.p = np.zeros((b, n_veh, N_PARAM))
+        self.steps = np.zeros(b, dtype=np.int64)
+        self.record = record
+        shape = (b, self.frames_per_step, n_veh, len(RECORD_FIELDS)) if record else (1, 1, 1, 1)
+        self.frames = np.zeros(shape)
+        self._obs = np.zeros((b, self.rows, 5), dtype=np.float32)
+        self._counts = np.zeros((b, 2), dtype=np.int64)
+        self._terms = np.zeros((b, 5))
+        self._rngs = [np.random.default_rng() for _ in range(b)]
+        self._mix_rngs = [np.random.default_rng() for _ in range(b)]
+        self.single_observation_space = spaces.Box(-1.0, 1.0, (self.rows, 5), np.float32)
+        self.single_action_space = spaces.Discrete(5)
+        self.observation_space = spaces.Box(-1.0, 1.0, (b, self.rows, 5), np.float32)
+        self.action_space = spaces.MultiDiscrete(np.full(b, 5))
+        # Weights in the order of core.ego_terms' first four columns.
+        self._w = np.array(
+            [
+                float(cfg[k])
+                for k in (
+                    "collision_reward",
+                    "lane_change_reward",
+                    "right_lane_reward",
+                    "high_speed_reward",
+                )
+            ]
+        )
+        # highway-env normalises x by 5 MAX_SPEED and v by 2 MAX_SPEED of the base Vehicle.
+        self._x_range, self._v_range = 5.0 * core.EGO_MAX_SPEED, 2.0 * core.EGO_MAX_SPEED
+
+    # ------------------------------------------------------------------ scenes
+    def _spawn(self, b: int) -> None:
+        """highway-env's HighwayEnv._create_vehicles with bgap's classes, for env b."""
+        rng, cfg, lanes, n = self._rngs[b], self.config, self.lanes, self.n
+        f, g, p = self.f[b], self.g[b], self.p[b]
+        f[:], g[:] = 0.0, 0
+        p[:] = IDM_DEFAULTS
+        spread = np.exp(-5 / 40 * lanes)  # Vehicle.create_random's spacing factor
+        lane_id = cfg.get("initial_lane_id")
+        ego_lane = int(lane_id) if lane_id is not None else int(rng.integers(lanes))
+        offset = float(cfg["ego_spacing"]) * (12 + 25.0) * spread
+        x = 3 * offset + offset * rng.uniform(0.9, 1.1)
+        f[0, X], f[0, Y], f[0, SPEED] = x, LANE_WIDTH * ego_lane, 25.0
+        g[0, LANE] = g[0, TARGET_LANE] = ego_lane
+        idx = core.speed_to_index(25.0, self.speeds)
+        g[0, SPEED_INDEX], f[0, TARGET_SPEED] = idx, self.speeds[idx]
+        g[0, LABEL] = EGO
+        if self.mix_sampling != "fixed":  # its own stream: the traffic's draws stay the same
+            mrng = self._mix_rngs[b]
+            mix = mrng.uniform(0, 1) if self.mix_sampling == "uniform" else mrng.choice(PAPER_MIXES)
+            self.n_aggressive[b] = count_aggressive(float(mix), n)
+        k = int(self.n_aggressive[b])
+        labels = np.array([AGGRESSIVE] * k + [CONSERVATIVE] * (n - k))
+        labels = rng.permutation(labels)
+        lanes_bg = rng.integers(lanes, size=n)
+        speeds = rng.uniform(0.7 * core.SPEED_LIMIT, 0.8 * core.SPEED_LIMIT, size=n)
+        offsets = (1 / float(cfg["vehicles_density"])) * (12 + speeds) * spread
+        xs = x + np.cumsum(offsets * rng.uniform(0.9, 1.1, size=n))
+        sl = slice(1, n + 1)
+        f[sl, X], f[sl, Y], f[sl, SPEED] = xs, LANE_WIDTH * lanes_bg, speeds
+        f[sl, TARGET_SPEED] = speeds
+        f[sl, TIMER] = ((xs + LANE_WIDTH * lanes_bg) * np.pi) % core.LANE_CHANGE_DELAY
+        g[sl, LANE] = g[sl, TARGET_LANE] = lanes_bg
+        g[sl, LABEL] = labels
+        deltas = rng.uniform(3.5, 4.5, size=n)
+        for code, name in ((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive")):
+            rows = np.flatnonzero(labels == code) + 1
+            if rows.size == 0:
+                continue
+            params = self.behavior[name]
+            p[rows, core.P_DELTA] = deltas[rows - 1]
+            for key, (col, convert) in _PARAM_FIELDS.items():
+                if params.get(key) is not None:
+                    p[rows, col] = float(convert(params[key]))
+            if params.get("v0") is not None:
+                s = float(params.get("v0_spread") or 0.0)
+                f[rows, TARGET_SPEED] = float(params["v0"]) * rng.uniform(1 - s, 1 + s, rows.size)
+            if not _is_stock(params):
+                p[rows, core.P_OWN] = 1.0
+                p[rows, core.P_VMAX] = 50.0  # BehaviorVehicle.MAX_SPEED
+        self.steps[b] = 0
+
+    def load_scene(self, b: int, scene: Scene) -> None:
+        """Put ``scene`` (e.g. from :func:`scene_from_highway`) into env b."""
+        if scene.f.shape[0] != self.n + 1:
+            raise ValueError(f"scene has {scene.f.shape[0] - 1} vehicles, this env {self.n}")
+        self.f[b], self.g[b], self.p[b] = scene.f, scene.g, scene.p
+        self.steps[b] = scene.steps
+
+    def scene(self, b: int) -> Scene:
+        return Scene(self.f[b].copy(), self.g[b].copy(), self.p[b].copy(), int(self.steps[b]))
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(
+        self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset every env; env k takes seed ``seed + k`` (or ``seed[k]``)."""
+        if seed is not None:
+            seeds = (
+                list(seed)
+                if isinstance(seed, Sequence)
+                else [seed + k for k in range(self.num_envs)]
+            )
+            if len(seeds) != self.num_envs:
+                raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} envs")
+            self._rngs = [np.random.default_rng(s) for s in seeds]
+            self._mix_rngs = [np.random.default_rng(s + 7919) for s in seeds]
+        for b in range(self.num_envs):
+            self._spawn(b)
+        obs = self._observe()
+        zero = np.zeros(self.num_envs, dtype=bool)
+        return obs.copy(), self._info(zero)
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
+        before = self.g[:, 0, TARGET_LANE].copy()
+        active = np.ones(self.num_envs, dtype=np.bool_)
+        core.step_batch(
+            self.f,
+            self.g,
+            self.p,
+            active,
+            actions,
+            self.speeds,
+            self.frames_per_step,
+            self.dt,
+            self.lanes,
+            self.frames,
+        )
+        self.steps += 1
+        obs = self._observe()
+        rewards, terms = self._rewards(before)
+        terminated = terms["collision_reward"] > 0
+        truncated = self.steps >= self.max_steps
+        info = self._info(terms["lane_change_reward"] > 0)
+        info["rewards"] = terms
+        done = terminated | truncated
+        if done.any():
+            info["final_obs"] = np.empty(self.num_envs, dtype=object)
+            info["_final_obs"] = done.copy()
+            for b in np.flatnonzero(done):
+                info["final_obs"][b] = obs[b].copy()
+                self._spawn(b)
+            obs = self._observe()
+        return obs.copy(), rewards, terminated, truncated, info
+
+    def close(self, **kwargs: Any) -> None:  # nothing to release
+        pass
+
+    # ------------------------------------------------------------------ observation, reward
+    def _observe(self) -> np.ndarray:
+        core.observe_batch(
+            self.f,
+            self.g,
+            self.radius,
+            self.lanes,
+            self._x_range,
+            self._v_range,
+            self._obs,
+            self._counts,
+        )
+        return self._obs
+
+    def _rewards(self, before: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """HighwayEnv._rewards and BehaviorHighwayEnv._reward, for every env (``before``: the
+        ego's target lane before the step)."""
+        lo, hi = self.config["reward_speed_range"]
+        t = self._terms
+        core.ego_terms(self.f, self.g, before, self.lanes, float(lo), float(hi), t)
+        terms = {
+            "collision_reward": t[:, 0].copy(),
+            "lane_change_reward": t[:, 1].copy(),
+            "right_lane_reward": t[:, 2].copy(),
+            "high_speed_reward": t[:, 3].copy(),
+            "on_road_reward": t[:, 4].copy(),
+        }
+        w = self._w
+        reward = t[:, :4] @ w
+        if self.config["normalize_reward"]:
+            low, high = np.minimum(w, 0).sum(), np.maximum(w, 0).sum()
+            if high > low:
+                reward = (reward - low) / (high - low)
+        return reward * t[:, 4], terms
+
+    def _info(self, lane_change: np.ndarray) -> dict[str, Any]:
+        """Per-env info arrays; the observation counts come from the last :meth:`_observe`."""
+        seen, seen_aggressive = self._counts[:, 0].copy(), self._counts[:, 1]
+        speed = self.f[:, 0, SPEED].copy()
+        return {
+            "speed": speed,
+            "ego_speed": speed,
+            "crashed": self.g[:, 0, CRASHED].astype(bool),
+            "lane_change": lane_change.copy(),
+            "lane": self.g[:, 0, LANE].copy(),
+            "aggressive_fraction": self.n_aggressive / max(self.n, 1),
+            "aggressive_fraction_observed": seen_aggressive / np.maximum(seen, 1),
+            "observed_count": seen,
+        }
+
+
+def initial_states(venv: VectorHighway) -> np.ndarray:
+    """The current frame of every env in the recording layout: (B, 1, n + 1, 7)."""
+    out = np.zeros((venv.num_envs, 1, venv.n + 1, len(RECORD_FIELDS)))
+    for b in range(venv.num_envs):
+        core.record(venv.f, venv.g, b, venv.n + 1, out, 0)
+    return out
+
+
+def scene_from_highway(env: Any) -> Scene:
+    """The current scene of a highway-env ``BehaviorHighwayEnv`` in the kernel layout."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    from bgap.behaviors import BehaviorVehicle
+
+    env = env.unwrapped
+    vehicles = env.road.vehicles
+    ego = env.vehicle
+    if vehicles[0] is not ego:
+        raise ValueError("the ego must be the first vehicle of the road")
+    n = len(vehicles)
+    f, g, p = np.zeros((n, N_FLOAT)), np.zeros((n, N_INT), dtype=np.int64), np.zeros((n, N_PARAM))
+    p[:] = IDM_DEFAULTS
+    for i, v in enumerate(vehicles):
+        f[i, X], f[i, Y] = v.position
+        f[i, HEADING], f[i, SPEED] = v.heading, v.speed
+        f[i, TARGET_SPEED] = v.target_speed
+        f[i, STEER], f[i, ACC] = v.action["steering"], v.action["acceleration"]
+        if v.impact is not None:
+            f[i, core.IMPACT_X], f[i, core.IMPACT_Y] = v.impact
+            g[i, core.HAS_IMPACT] = 1
+        g[i, LANE], g[i, TARGET_LANE] = v.lane_index[2], v.target_lane_index[2]
+        g[i, CRASHED] = int(v.crashed)
+        p[i, core.P_VMAX] = v.MAX_SPEED
+        if v is ego:
+            g[i, LABEL] = EGO
+            g[i, SPEED_INDEX] = getattr(v, "speed_index", 0)
+            continue
+        if not isinstance(v, IDMVehicle):
+            raise ValueError(f"vehicle {i} is a {type(v).__name__}, not an IDM driver")
+        g[i, LABEL] = _CLASS_CODES[getattr(v, "bgap_label", "conservative")]
+        f[i, TIMER] = v.timer
+        p[i, core.P_T], p[i, core.P_D0] = v.TIME_WANTED, v.DISTANCE_WANTED
+        p[i, core.P_A], p[i, core.P_B] = v.COMFORT_ACC_MAX, -v.COMFORT_ACC_MIN
+        p[i, core.P_DELTA], p[i, core.P_POLITENESS] = v.DELTA, v.POLITENESS
+        p[i, core.P_GAIN] = v.LANE_CHANGE_MIN_ACC_GAIN
+        p[i, core.P_BSAFE] = v.LANE_CHANGE_MAX_BRAKING_IMPOSED
+        p[i, core.P_AMAX] = v.ACC_MAX
+        p[i, core.P_OWN] = float(isinstance(v, BehaviorVehicle))
+    return Scene(f, g, p, steps=int(round(env.time * env.config["policy_frequency"])))
