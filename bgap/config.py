@@ -320,7 +320,7 @@ class ProfileConfig:
     """Compute budget (config group ``profile``: ``quick`` or ``paper``)."""
 
     name: str = "quick"
-    train_steps: int = 1500
+    train_steps: int = 30_000
     """Environment steps of training (the cap when ``train_episodes`` is set)."""
     train_episodes: Optional[int] = None
     """Stop after this many training episodes (the paper: 3000)."""
@@ -421,6 +421,123 @@ class ExperimentConfig(BaseConfig):
         _check(self.workers >= 1, "workers", self.workers, "must be >= 1")
 
 
+@dataclass
+class ParamBounds:
+    """Search interval [low, high] per driver parameter (DriverParams units); null: the
+    parameter is not searched and keeps the preset's value."""
+
+    time_gap: Optional[list[float]] = field(default_factory=lambda: [0.5, 2.5])
+    min_distance: Optional[list[float]] = field(default_factory=lambda: [1.0, 6.0])
+    acc: Optional[list[float]] = field(default_factory=lambda: [1.0, 6.0])
+    dec: Optional[list[float]] = field(default_factory=lambda: [2.0, 9.0])
+    delta: Optional[list[float]] = None
+    v0: Optional[list[float]] = field(default_factory=lambda: [20.0, 45.0])
+    politeness: Optional[list[float]] = field(default_factory=lambda: [0.0, 1.0])
+    min_acc_gain: Optional[list[float]] = field(default_factory=lambda: [0.0, 0.5])
+    b_safe: Optional[list[float]] = field(default_factory=lambda: [1.0, 9.0])
+
+    def __post_init__(self) -> None:
+        for key, b in asdict(self).items():
+            if b is None:
+                continue
+            _check(
+                len(b) == 2 and b[0] < b[1],
+                f"calibrate.bounds.{key}",
+                list(b),
+                "must be [low, high] with low < high",
+            )
+            _check(b[0] >= 0, f"calibrate.bounds.{key}", list(b), "must be >= 0")
+
+    def searched(self) -> dict[str, tuple[float, float]]:
+        return {k: (float(b[0]), float(b[1])) for k, b in asdict(self).items() if b is not None}
+
+
+@dataclass
+class ClassTargets:
+    """Target mean CMetric score per class."""
+
+    aggressive: float = 0.77
+    conservative: float = 0.31
+
+    def __post_init__(self) -> None:
+        for key, t in asdict(self).items():
+            _check(0 < t < 1, f"calibrate.targets.{key}", t, "CMetric scores lie in (0, 1)")
+
+
+@dataclass
+class StartParams:
+    """Per class, the first trial's parameters; null values take the behaviour preset's."""
+
+    conservative: DriverParams = field(default_factory=DriverParams)
+    aggressive: DriverParams = field(default_factory=DriverParams)
+
+
+@dataclass
+class CalibrationConfig:
+    """Behaviour calibration (config group ``calibrate``); README "Calibration" says why."""
+
+    name: str = "default"
+    classes: list[str] = field(default_factory=lambda: ["aggressive", "conservative"])
+    """Driver classes to calibrate, one Optuna study each."""
+    trials: int = 200
+    """Completed trials per class (counted across workers and reruns)."""
+    targets: ClassTargets = field(default_factory=ClassTargets)
+    tolerance: float = 0.02
+    """A class is calibrated when |mean score - target| is below this."""
+    bounds: ParamBounds = field(default_factory=ParamBounds)
+    start: StartParams = field(default_factory=StartParams)
+    density: str = "dense"
+    """``env`` preset of the scenes each trial simulates."""
+    scene_mix: float = 0.5
+    """Aggressive fraction of the scenes (both classes must be present)."""
+    episodes: int = 4
+    duration: float = 30.0
+    """Length of each scene [s]."""
+    scene_seed: int = 0
+    """Scene k of every trial uses seed scene_seed + k: trials differ only in parameters."""
+    max_crashed: float = 0.05
+    """Trials whose scenes end with more than this fraction of vehicles crashed are penalised."""
+    min_speed: float = 8.0
+    """... and those whose class drives slower than this [m/s] (stalled traffic)."""
+    min_auc: float = 0.75
+    """... and those where CMetric separates the two classes worse than this ROC AUC."""
+    sampler_seed: int = 0
+    storage: Optional[str] = None
+    """Optuna storage URL: sqlite:///..., postgresql://..., or journal:PATH (a journal file
+    for parallel workers). Default: SQLite under ``<root>/calibration/``."""
+    study: str = "bgap-calibration"
+    """Study name prefix; the class and the scene settings are appended."""
+    preset: str = "conf/behavior/calibrated.yaml"
+    """Where the calibrated behaviour preset is written (``behavior=calibrated``)."""
+    out: str = "results/calibration"
+
+    def __post_init__(self) -> None:
+        from bgap.behaviors import CLASSES
+
+        for c in self.classes:
+            _check(c in CLASSES, "calibrate.classes", self.classes, f"use {list(CLASSES)}")
+        _check(
+            bool(self.bounds.searched()),
+            "calibrate.bounds",
+            "all null",
+            "give [low, high] for at least one parameter",
+        )
+        _check(self.trials >= 1, "calibrate.trials", self.trials, "must be >= 1")
+        _check(self.episodes >= 1, "calibrate.episodes", self.episodes, "must be >= 1")
+        _check(0 < self.scene_mix < 1, "calibrate.scene_mix", self.scene_mix, "must lie in (0, 1)")
+        _check(self.tolerance > 0, "calibrate.tolerance", self.tolerance, "must be positive")
+
+
+@dataclass
+class CalibrateAppConfig(BaseConfig):
+    """``python -m bgap.calibrate``: Optuna searches driver parameters for CMetric targets."""
+
+    calibrate: CalibrationConfig = field(default_factory=CalibrationConfig)
+    cmetric: CMetricConfig = field(default_factory=CMetricConfig)
+    backend: str = "vector"
+    root: str = "outputs"
+
+
 def register_configs() -> None:
     """Register the schemas; YAML files name them in their defaults list."""
     cs = ConfigStore.instance()
@@ -434,6 +551,8 @@ def register_configs() -> None:
     cs.store(group="agent", name="base_agent", node=AgentConfig)
     cs.store(group="profile", name="base_profile", node=ProfileConfig)
     cs.store(group="grid", name="base_grid", node=GridConfig)
+    cs.store(group="calibrate", name="base_calibrate", node=CalibrationConfig)
+    cs.store(name="base_calibrate_app", node=CalibrateAppConfig)
 
 
 def validate(cfg: DictConfig) -> Any:
