@@ -1,0 +1,357 @@
+"""Behaviour calibration: ``python -m bgap.calibrate`` (the paper's section V-A, made real).
+
+For each driver class an Optuna study searches that class's IDM and MOBIL parameters. A
+trial simulates the same seeded scenes (both classes present, the other class at its preset
+values), scores every vehicle with CMetric, and returns |mean score of the class - target|,
+plus a penalty of 1 + excess when the traffic is degenerate (too many crashes, stalled
+traffic, or classes CMetric cannot tell apart). Studies live in an Optuna storage (SQLite
+under the output root by default; PostgreSQL or a journal file for parallel workers), so an
+interrupted calibration continues where it stopped and ``optuna-dashboard <storage>`` shows it.
+
+Outputs: ``conf/behavior/calibrated.yaml`` (``behavior=calibrated``), and under
+``results/calibration/``: Table I beside ours (``table.md``, ``table.csv``), the scores the
+preset reaches (``scores.json``), ``convergence.png`` and ``scores.png``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import warnings
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import hydra
+import numpy as np
+import optuna
+import pandas as pd
+from omegaconf import DictConfig, OmegaConf
+
+from bgap.behaviors import AGGRESSIVE, CLASSES, CONSERVATIVE
+from bgap.config import (
+    CONF_DIR,
+    BehaviorConfig,
+    CalibrateAppConfig,
+    ConfigError,
+    DriverParams,
+    SimulateConfig,
+    env_preset,
+    load,
+    register_configs,
+)
+
+# Table I of the paper, for the comparison table.
+PAPER_TABLE = {
+    CONSERVATIVE: {
+        "time_gap": 1.5,
+        "min_distance": 5.0,
+        "acc": 3.0,
+        "dec": 6.0,
+        "v0": 25.0,
+        "politeness": 0.5,
+        "min_acc_gain": 0.2,
+        "b_safe": 3.0,
+    },
+    AGGRESSIVE: {
+        "time_gap": 1.2,
+        "min_distance": 2.5,
+        "acc": 6.0,
+        "dec": 9.0,
+        "v0": 40.0,
+        "politeness": 0.0,
+        "min_acc_gain": 0.0,
+        "b_safe": 9.0,
+    },
+}
+
+
+def storage_url(cfg: CalibrateAppConfig) -> str:
+    url = cfg.calibrate.storage
+    if url:
+        return url
+    path = Path(cfg.root) / "calibration" / "optuna.db"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{path.resolve()}"
+
+
+def open_storage(url: str) -> optuna.storages.BaseStorage:
+    """The storage behind ``url``, opened now so that a bad URL fails before any simulation.
+
+    RDB storages get a heartbeat: a trial whose worker died is marked failed and retried
+    instead of blocking the study."""
+    try:
+        if url.startswith("journal:"):
+            from optuna.storages.journal import JournalFileBackend
+
+            return optuna.storages.JournalStorage(JournalFileBackend(url[len("journal:") :]))
+        with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna 5
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return optuna.storages.RDBStorage(url, heartbeat_interval=30, grace_period=90)
+    except Exception as err:  # noqa: BLE001 - any driver error means the same to the user
+        raise ConfigError(
+            f"calibrate.storage={url!r} cannot be opened ({type(err).__name__}: "
+            f"{str(err).splitlines()[0][:160]}); use sqlite:///PATH, postgresql://..., or "
+            "journal:PATH"
+        ) from None
+
+
+def study_name(cfg: CalibrateAppConfig, label: str) -> str:
+    """One study per class and per everything that changes a trial's value."""
+    c = cfg.calibrate
+    keys = {
+        "target": getattr(c.targets, label),
+        "bounds": c.bounds.searched(),
+        "density": c.density,
+        "mix": c.scene_mix,
+        "episodes": c.episodes,
+        "duration": c.duration,
+        "seed": c.scene_seed,
+        "limits": [c.max_crashed, c.min_speed, c.min_auc],
+        "cmetric": asdict(cfg.cmetric),
+        "others": asdict(cfg.behavior),
+        "backend": cfg.backend,
+        "start": asdict(getattr(c.start, label)),
+    }
+    digest = hashlib.sha1(json.dumps(keys, sort_keys=True, default=str).encode()).hexdigest()
+    return f"{c.study}-{label}-{digest[:8]}"
+
+
+def with_params(behavior: BehaviorConfig, label: str, params: dict[str, float]) -> BehaviorConfig:
+    """``behavior`` with class ``label``'s parameters replaced by ``params``."""
+    current = asdict(getattr(behavior, label))
+    current.update(params)
+    return replace(behavior, name="calibrated", **{label: DriverParams(**current)})
+
+
+def scene_scores(cfg: CalibrateAppConfig, behavior: BehaviorConfig) -> dict[str, Any]:
+    """Simulate the calibration scenes under ``behavior`` and score them with CMetric."""
+    from bgap.cmetric.score import label_auc, score_trajectories
+    from bgap.simulate import simulate
+
+    c = cfg.calibrate
+    env = replace(env_preset(c.density), duration=c.duration)
+    sim = SimulateConfig(
+        env=env,
+        behavior=behavior,
+        reward=cfg.reward,
+        mix=c.scene_mix,
+        radius=cfg.radius,
+        seed=c.scene_seed,
+        backend=cfg.backend,
+        episodes=c.episodes,
+    )
+    table = simulate(sim, progress=False)
+    result = score_trajectories(table, cfg.cmetric, fps=env.simulation_frequency)
+    vehicles = result.vehicles
+    final = table[table.frame == table.groupby("episode").frame.transform("max")]
+    background = final[~final.is_ego]
+    out: dict[str, Any] = {
+        "auc": float(label_auc(vehicles[vehicles.label != "ego"])),
+        "crashed": float(background.crashed.mean()),
+        "scores": {},
+    }
+    for label in CLASSES:
+        s = vehicles.loc[vehicles.label == label, "aggressiveness"].dropna()
+        speed = table.loc[table.label == label, "speed"]
+        out["scores"][label] = s.to_numpy()
+        out[f"mean_{label}"] = float(s.mean())
+        out[f"speed_{label}"] = float(speed.mean())
+    return out
+
+
+def objective_value(cfg: CalibrateAppConfig, label: str, stats: dict[str, Any]) -> float:
+    """Distance of the class's mean score to its target, plus penalties for degeneracy."""
+    c = cfg.calibrate
+    value = abs(stats[f"mean_{label}"] - getattr(c.targets, label))
+    if stats["crashed"] > c.max_crashed:
+        value += 1.0 + (stats["crashed"] - c.max_crashed)
+    if stats[f"speed_{label}"] < c.min_speed:
+        value += 1.0 + (c.min_speed - stats[f"speed_{label}"]) / c.min_speed
+    if not stats["auc"] >= c.min_auc:  # NaN counts as inseparable
+        value += 1.0 + (c.min_auc - (stats["auc"] if np.isfinite(stats["auc"]) else 0.0))
+    return float(value)
+
+
+def start_params(cfg: CalibrateAppConfig, label: str) -> dict[str, float]:
+    """The first trial: ``calibrate.start`` or the preset's values, inside the bounds."""
+    c = cfg.calibrate
+    preset = asdict(getattr(cfg.behavior, label))
+    given = asdict(getattr(c.start, label))
+    start = {}
+    for key, (lo, hi) in c.bounds.searched().items():
+        value = given[key] if given[key] is not None else preset.get(key)
+        if value is None:
+            value = (lo + hi) / 2
+        start[key] = float(min(max(value, lo), hi))
+    return start
+
+
+def calibrate_class(cfg: CalibrateAppConfig, label: str, progress: bool = True) -> optuna.Study:
+    """Run (or continue) the study of class ``label`` until it holds ``calibrate.trials``
+    completed trials."""
+    from optuna.study import MaxTrialsCallback
+    from optuna.trial import TrialState
+
+    c = cfg.calibrate
+    storage = open_storage(storage_url(cfg))
+    study = optuna.create_study(
+        study_name=study_name(cfg, label),
+        storage=storage,
+        direction="minimize",
+        sampler=optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10),
+        load_if_exists=True,
+    )
+    if not study.trials:
+        study.enqueue_trial(start_params(cfg, label))
+
+    def objective(trial: optuna.Trial) -> float:
+        params = {k: trial.suggest_float(k, lo, hi) for k, (lo, hi) in c.bounds.searched().items()}
+        stats = scene_scores(cfg, with_params(cfg.behavior, label, params))
+        for key in (
+            "auc",
+            "crashed",
+            *(f"mean_{x}" for x in CLASSES),
+            *(f"speed_{x}" for x in CLASSES),
+        ):
+            trial.set_user_attr(key, stats[key])
+        return objective_value(cfg, label, stats)
+
+    done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
+    remaining = c.trials - done
+    if remaining > 0:
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        study.optimize(
+            objective,
+            n_trials=remaining,
+            callbacks=[MaxTrialsCallback(c.trials, states=(TrialState.COMPLETE,))],
+            show_progress_bar=progress,
+        )
+    return study
+
+
+def best_behavior(cfg: CalibrateAppConfig, studies: dict[str, optuna.Study]) -> BehaviorConfig:
+    behavior = replace(cfg.behavior, name="calibrated")
+    for label, study in studies.items():
+        behavior = with_params(behavior, label, dict(study.best_params))
+    return behavior
+
+
+def load_preset(path: str | Path) -> BehaviorConfig:
+    """A behaviour preset file (e.g. the one :func:`write_preset` wrote) as a validated
+    BehaviorConfig, without going through Hydra's search path."""
+    values = OmegaConf.load(path)
+    values.pop("defaults", None)
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(BehaviorConfig), values))
+
+
+def write_preset(behavior: BehaviorConfig, path: Path, note: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = OmegaConf.to_yaml(OmegaConf.structured(behavior))
+    body = "\n".join(
+        line for line in body.splitlines() if not line.endswith(": null")
+    )  # unset parameters keep highway-env's defaults
+    path.write_text(f"# {note}\ndefaults:\n  - base_behavior\n{body}\n")
+    return path
+
+
+def write_outputs(
+    cfg: CalibrateAppConfig, studies: dict[str, optuna.Study], behavior: BehaviorConfig
+) -> dict[str, Any]:
+    """Table I beside ours, the scores the preset reaches, and the two plots."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    c = cfg.calibrate
+    out = Path(c.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for key in PAPER_TABLE[CONSERVATIVE]:
+        row = {"parameter": key}
+        for label in (CONSERVATIVE, AGGRESSIVE):
+            row[f"paper_{label}"] = PAPER_TABLE[label][key]
+            value = getattr(getattr(behavior, label), key)
+            row[f"bgap_{label}"] = None if value is None else round(float(value), 3)
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    table.to_csv(out / "table.csv", index=False)
+    (out / "table.md").write_text(table.to_markdown(index=False) + "\n")
+
+    stats = scene_scores(cfg, behavior)  # the preset as written, on the calibration scenes
+    summary = {
+        "targets": asdict(c.targets),
+        "achieved": {x: stats[f"mean_{x}"] for x in CLASSES},
+        "speed": {x: stats[f"speed_{x}"] for x in CLASSES},
+        "auc": stats["auc"],
+        "crashed": stats["crashed"],
+        "trials": {x: len(s.trials) for x, s in studies.items()},
+        "best_value": {x: s.best_value for x, s in studies.items()},
+    }
+    (out / "scores.json").write_text(json.dumps(summary, indent=2))
+
+    fig, axes = plt.subplots(1, len(studies), figsize=(5 * len(studies), 3.4), squeeze=False)
+    for ax, (label, study) in zip(axes[0], studies.items(), strict=True):
+        done = [t for t in study.trials if t.value is not None]
+        x = [t.number for t in done]
+        means = [t.user_attrs.get(f"mean_{label}", np.nan) for t in done]
+        ax.plot(x, means, ".", alpha=0.5, label=f"mean {label} score")
+        best = np.minimum.accumulate([t.value for t in done])
+        ax.plot(x, best, "-", color="k", label="best objective")
+        ax.axhline(getattr(c.targets, label), color="r", ls="--", label="target")
+        ax.set_xlabel("trial")
+        ax.set_title(label)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "convergence.png", dpi=120)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    bins = np.linspace(0, 1, 31)
+    for label, color in ((CONSERVATIVE, "tab:blue"), (AGGRESSIVE, "tab:red")):
+        ax.hist(stats["scores"][label], bins=bins, alpha=0.5, color=color, label=label)
+        ax.axvline(getattr(c.targets, label), color=color, ls="--")
+    ax.set_xlabel("CMetric aggressiveness score")
+    ax.set_ylabel("vehicles")
+    ax.set_title("calibrated preset (dashed: targets)")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "scores.png", dpi=120)
+    plt.close(fig)
+    return summary
+
+
+def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
+    """Every class's study, then the preset and the report; returns the summary."""
+    open_storage(storage_url(cfg))  # fail on a bad URL before simulating anything
+    studies = {label: calibrate_class(cfg, label, progress) for label in cfg.calibrate.classes}
+    behavior = best_behavior(cfg, studies)
+    targets = ", ".join(f"{k} {v}" for k, v in asdict(cfg.calibrate.targets).items())
+    write_preset(
+        behavior,
+        Path(cfg.calibrate.preset),
+        f"Written by python -m bgap.calibrate (targets: {targets}); see results/calibration/.",
+    )
+    return write_outputs(cfg, studies, behavior)
+
+
+register_configs()
+
+
+@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="calibrate")
+def main(dcfg: DictConfig) -> None:
+    from bgap.runs import save_run_metadata
+
+    cfg: CalibrateAppConfig = load(dcfg)
+    save_run_metadata(cfg.calibrate.out, dcfg)
+    try:
+        summary = calibrate(cfg)
+    except ConfigError as err:
+        raise SystemExit(f"bgap: configuration error: {err}") from None
+    print(json.dumps({k: v for k, v in summary.items()}, indent=2))
+    print(f"preset: {cfg.calibrate.preset} (use behavior=calibrated); report: {cfg.calibrate.out}")
+
+
+if __name__ == "__main__":
+    main()
