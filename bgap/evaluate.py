@@ -323,8 +323,19 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
 
 
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
-    """Named policies of ``bgap.evaluate``: each model (named by its run folder) and baselines."""
-    specs = {Path(m).name if Path(m).is_dir() else Path(m).parent.name: str(m) for m in cfg.models}
+    """Named policies of ``bgap.evaluate``: each model (named by its run folder) and baselines.
+
+    A folder without ``model.zip`` stands for every run folder inside it (a pipeline's runs)."""
+    models: list[Path] = []
+    for m in map(Path, cfg.models):
+        if m.is_dir() and not (m / "model.zip").exists():
+            found = sorted(p.parent for p in m.glob("*/model.zip"))
+            if not found:
+                raise FileNotFoundError(f"no model.zip in {m} or its subfolders")
+            models.extend(found)
+        else:
+            models.append(m)
+    specs = {m.name if m.is_dir() else m.parent.name: str(m) for m in models}
     specs.update({b: b for b in cfg.baselines if b in BASELINES})
     return specs
 
