@@ -173,11 +173,14 @@ def objective_value(cfg: CalibrateAppConfig, label: str, stats: dict[str, Any]) 
     return float(value)
 
 
-def start_params(cfg: CalibrateAppConfig, label: str) -> dict[str, float]:
-    """The first trial: ``calibrate.start`` or the preset's values, inside the bounds."""
+def start_params(cfg: CalibrateAppConfig, label: str) -> dict[str, float] | None:
+    """The first trial when ``calibrate.start.<label>`` sets any parameter (unset ones take
+    the preset's values), inside the bounds; None: start from random draws, as the paper."""
     c = cfg.calibrate
     preset = asdict(getattr(cfg.behavior, label))
     given = asdict(getattr(c.start, label))
+    if all(given[k] is None for k in c.bounds.searched()):
+        return None
     start = {}
     for key, (lo, hi) in c.bounds.searched().items():
         value = given[key] if given[key] is not None else preset.get(key)
@@ -202,8 +205,9 @@ def calibrate_class(cfg: CalibrateAppConfig, label: str, progress: bool = True) 
         sampler=optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10),
         load_if_exists=True,
     )
-    if not study.trials:
-        study.enqueue_trial(start_params(cfg, label))
+    start = start_params(cfg, label)
+    if start is not None and not study.trials:
+        study.enqueue_trial(start)
 
     def objective(trial: optuna.Trial) -> float:
         params = {k: trial.suggest_float(k, lo, hi) for k, (lo, hi) in c.bounds.searched().items()}
