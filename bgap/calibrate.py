@@ -66,6 +66,10 @@ PAPER_TABLE = {
 }
 
 
+# Seconds between a running trial's heartbeats, and without one before it counts as dead.
+HEARTBEAT = (30, 90)
+
+
 def storage_url(cfg: CalibrateAppConfig) -> str:
     url = cfg.calibrate.storage
     if url:
@@ -75,7 +79,7 @@ def storage_url(cfg: CalibrateAppConfig) -> str:
     return f"sqlite:///{path.resolve()}"
 
 
-def open_storage(url: str) -> optuna.storages.BaseStorage:
+def open_storage(url: str, key: str = "calibrate.storage") -> optuna.storages.BaseStorage:
     """The storage behind ``url``, opened now so that a bad URL fails before any simulation.
 
     RDB storages get a heartbeat: a trial whose worker died is marked failed and retried
@@ -87,10 +91,11 @@ def open_storage(url: str) -> optuna.storages.BaseStorage:
             return optuna.storages.JournalStorage(JournalFileBackend(url[len("journal:") :]))
         with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna 5
             warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            return optuna.storages.RDBStorage(url, heartbeat_interval=30, grace_period=90)
+            interval, grace = HEARTBEAT
+            return optuna.storages.RDBStorage(url, heartbeat_interval=interval, grace_period=grace)
     except Exception as err:  # noqa: BLE001 - any driver error means the same to the user
         raise ConfigError(
-            f"calibrate.storage={url!r} cannot be opened ({type(err).__name__}: "
+            f"{key}={url!r} cannot be opened ({type(err).__name__}: "
             f"{str(err).splitlines()[0][:160]}); use sqlite:///PATH, postgresql://..., or "
             "journal:PATH"
         ) from None
@@ -234,13 +239,6 @@ def calibrate_class(cfg: CalibrateAppConfig, label: str, progress: bool = True) 
     return study
 
 
-def best_behavior(cfg: CalibrateAppConfig, studies: dict[str, optuna.Study]) -> BehaviorConfig:
-    behavior = replace(cfg.behavior, name="calibrated")
-    for label, study in studies.items():
-        behavior = with_params(behavior, label, dict(study.best_params))
-    return behavior
-
-
 def load_preset(path: str | Path) -> BehaviorConfig:
     """A behaviour preset file (e.g. the one :func:`write_preset` wrote) as a validated
     BehaviorConfig, without going through Hydra's search path."""
@@ -260,7 +258,7 @@ def write_preset(behavior: BehaviorConfig, path: Path, note: str) -> Path:
 
 
 def write_outputs(
-    cfg: CalibrateAppConfig, studies: dict[str, optuna.Study], behavior: BehaviorConfig
+    cfg: CalibrateAppConfig, studies: dict[str, list[optuna.Study]], behavior: BehaviorConfig
 ) -> dict[str, Any]:
     """Table I beside ours, the scores the preset reaches, and the two plots."""
     import matplotlib
@@ -290,19 +288,22 @@ def write_outputs(
         "speed": {x: stats[f"speed_{x}"] for x in CLASSES},
         "auc": stats["auc"],
         "crashed": stats["crashed"],
-        "trials": {x: len(s.trials) for x, s in studies.items()},
-        "best_value": {x: s.best_value for x, s in studies.items()},
+        "trials": {x: sum(len(s.trials) for s in ss) for x, ss in studies.items()},
+        "best_value_last_round": {x: ss[-1].best_value for x, ss in studies.items()},
     }
     (out / "scores.json").write_text(json.dumps(summary, indent=2))
 
     fig, axes = plt.subplots(1, len(studies), figsize=(5 * len(studies), 3.4), squeeze=False)
-    for ax, (label, study) in zip(axes[0], studies.items(), strict=True):
-        done = [t for t in study.trials if t.value is not None]
-        x = [t.number for t in done]
-        means = [t.user_attrs.get(f"mean_{label}", np.nan) for t in done]
-        ax.plot(x, means, ".", alpha=0.5, label=f"mean {label} score")
-        best = np.minimum.accumulate([t.value for t in done])
-        ax.plot(x, best, "-", color="k", label="best objective")
+    for ax, (label, rounds) in zip(axes[0], studies.items(), strict=True):
+        offset = 0
+        for r, study in enumerate(rounds):
+            done = [t for t in study.trials if t.value is not None]
+            x = [offset + t.number for t in done]
+            means = [t.user_attrs.get(f"mean_{label}", np.nan) for t in done]
+            ax.plot(x, means, ".", alpha=0.5, color=f"C{r}", label=f"mean score, round {r + 1}")
+            best = np.minimum.accumulate([t.value for t in done])
+            ax.plot(x, best, "-", color="k", label="best objective" if r == 0 else None)
+            offset += len(study.trials)
         ax.axhline(getattr(c.targets, label), color="r", ls="--", label="target")
         ax.set_xlabel("trial")
         ax.set_title(label)
@@ -329,8 +330,18 @@ def write_outputs(
 def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
     """Every class's study, then the preset and the report; returns the summary."""
     open_storage(storage_url(cfg))  # fail on a bad URL before simulating anything
-    studies = {label: calibrate_class(cfg, label, progress) for label in cfg.calibrate.classes}
-    behavior = best_behavior(cfg, studies)
+    # CMetric scores are relative to the scene, so one class's target depends on how the
+    # other drives: calibrate the classes in turn, each against the other's latest best,
+    # for calibrate.rounds rounds (coordinate descent). Each (round, class) is one study,
+    # named by the other class's parameters, so a rerun finds and continues the same ones.
+    behavior = cfg.behavior
+    studies: dict[str, list[optuna.Study]] = {label: [] for label in cfg.calibrate.classes}
+    for _ in range(cfg.calibrate.rounds):
+        for label in cfg.calibrate.classes:
+            study = calibrate_class(replace(cfg, behavior=behavior), label, progress)
+            studies[label].append(study)
+            behavior = with_params(behavior, label, dict(study.best_params))
+    behavior = replace(behavior, name="calibrated")
     targets = ", ".join(f"{k} {v}" for k, v in asdict(cfg.calibrate.targets).items())
     write_preset(
         behavior,

@@ -479,8 +479,10 @@ class CalibrationConfig:
     name: str = "default"
     classes: list[str] = field(default_factory=lambda: ["aggressive", "conservative"])
     """Driver classes to calibrate, one Optuna study each."""
-    trials: int = 200
-    """Completed trials per class (counted across workers and reruns)."""
+    trials: int = 100
+    """Completed trials per class and round (counted across workers and reruns)."""
+    rounds: int = 3
+    """Rounds of calibrating the classes in turn, each against the other's latest best."""
     targets: ClassTargets = field(default_factory=ClassTargets)
     tolerance: float = 0.02
     """A class is calibrated when |mean score - target| is below this."""
@@ -523,6 +525,7 @@ class CalibrationConfig:
             "give [low, high] for at least one parameter",
         )
         _check(self.trials >= 1, "calibrate.trials", self.trials, "must be >= 1")
+        _check(self.rounds >= 1, "calibrate.rounds", self.rounds, "must be >= 1")
         _check(self.episodes >= 1, "calibrate.episodes", self.episodes, "must be >= 1")
         _check(0 < self.scene_mix < 1, "calibrate.scene_mix", self.scene_mix, "must lie in (0, 1)")
         _check(self.tolerance > 0, "calibrate.tolerance", self.tolerance, "must be positive")
@@ -568,8 +571,11 @@ def compose(config_name: str = "simulate", overrides: list[str] | None = None) -
     (tests, Optuna trials). Unknown keys and wrong types raise here."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
+    from hydra.core.global_hydra import GlobalHydra
 
     register_configs()
+    if GlobalHydra.instance().is_initialized():  # inside a Hydra app (its search path: conf/)
+        return hydra_compose(config_name=config_name, overrides=list(overrides or []))
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return hydra_compose(config_name=config_name, overrides=list(overrides or []))
 
