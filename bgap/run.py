@@ -11,6 +11,7 @@ the scripted baselines on identical seeded episodes at the chosen mix and radius
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import hydra
@@ -32,14 +33,32 @@ def results_dir(cfg: ExperimentConfig) -> Path:
     return Path(cfg.root) / "results" / name
 
 
+@contextmanager
+def _exclusive(run_dir: Path):
+    """An advisory lock on a run folder, held while it is trained or checked."""
+    import fcntl
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / ".lock", "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
 def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     start = time.perf_counter()
     models = {}
     for policy in POLICIES:
         pcfg = training_config(cfg, policy)
-        cached = (run_dir_for(pcfg) / "model.zip").exists()
-        print(f"[{policy}] {'reusing' if cached else 'training'} {run_dir_for(pcfg)}")
-        models[policy] = str(train(pcfg) / "model.zip")
+        run_dir = run_dir_for(pcfg)
+        # Parallel jobs of a multirun can need the same model (the default policy of a
+        # density): one trains it, the others wait for it and reuse it.
+        with _exclusive(run_dir):
+            cached = (run_dir / "model.zip").exists()
+            print(f"[{policy}] {'reusing' if cached else 'training'} {run_dir}")
+            models[policy] = str(train(pcfg) / "model.zip")
     out = results_dir(cfg)
     if dcfg is not None:
         save_run_metadata(out, dcfg)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -233,8 +234,10 @@ class Progress(BaseCallback):
         self._last_ckpt = self.num_timesteps
 
 
-def train(cfg: ExperimentConfig, progress: bool = True) -> Path:
-    """Train ``cfg.policy`` (resuming if ``cfg.resume``); returns the run folder."""
+def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()) -> Path:
+    """Train ``cfg.policy`` (resuming if ``cfg.resume``); returns the run folder.
+
+    ``callbacks``: extra SB3 callbacks (the sweeps' pruning evaluations)."""
     import torch
 
     cfg = training_config(cfg)
@@ -263,7 +266,7 @@ def train(cfg: ExperimentConfig, progress: bool = True) -> Path:
         if remaining > 0:
             model.learn(
                 total_timesteps=remaining,
-                callback=callback,
+                callback=[callback, *callbacks],
                 progress_bar=progress,
                 reset_num_timesteps=not resuming,
                 tb_log_name="dqn",

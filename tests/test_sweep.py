@@ -1,0 +1,183 @@
+"""Optuna sweeps: end to end, resumable, shared by workers on a real PostgreSQL server."""
+
+from __future__ import annotations
+
+import glob
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import optuna
+import pytest
+
+from bgap.config import ConfigError, compose, validate
+from bgap.sweep import load_space, sweep, write_outputs
+from bgap.train import train as _train  # noqa: F401  (imported early: workers fork cleanly)
+
+TINY = ["profile=tiny", "sweep_eval_episodes=4"]
+
+
+def _cfg(tmp_path, *overrides: str):
+    return validate(
+        compose("sweep", [*TINY, f"root={tmp_path}", f"preset={tmp_path}/tuned.yaml", *overrides])
+    )
+
+
+def test_multi_objective_sweep_writes_pareto_front_and_preset(tmp_path):
+    cfg = _cfg(tmp_path, "trials=3")
+    study = sweep(cfg, progress=False)
+    assert len(study.trials) == 3 and len(study.directions) == 2
+    paths = write_outputs(study, cfg)
+    assert paths["plot"].read_bytes()[:4] == b"\x89PNG"
+    front = paths["pareto"].read_text().splitlines()
+    assert len(front) - 1 == len(study.best_trials) >= 1
+    from omegaconf import OmegaConf
+
+    from bgap.config import RewardConfig
+    from bgap.sweep import chosen_trial
+
+    values = OmegaConf.load(tmp_path / "tuned.yaml")  # must fit the reward schema
+    values.pop("defaults")
+    reward = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RewardConfig), values))
+    chosen = chosen_trial(study, cfg)
+    assert chosen.number in {t.number for t in study.best_trials}
+    assert reward.name == "tuned"
+    for key, value in chosen.params.items():
+        assert getattr(reward, key.split(".")[1]) == pytest.approx(value)
+    for t in study.trials:  # every trial kept its run folder and resolved config
+        assert (Path(t.user_attrs["run_dir"]) / "config.yaml").exists()
+
+
+def test_resumed_sweep_continues_its_trial_count(tmp_path):
+    first = sweep(_cfg(tmp_path, "trials=2", "mode=single"), progress=False)
+    numbers = [t.number for t in first.trials]
+    again = sweep(_cfg(tmp_path, "trials=4", "mode=single"), progress=False)
+    assert numbers == [0, 1] and [t.number for t in again.trials] == [0, 1, 2, 3]
+
+
+def test_bad_search_spaces_fail_before_training(tmp_path, monkeypatch):
+    import bgap.sweep as sw
+
+    with pytest.raises(ConfigError, match="no search space"):
+        load_space("nonexistent")
+    bad = tmp_path / "sweeps"
+    bad.mkdir()
+    (bad / "typo.yaml").write_text("params:\n  reward.colision: {low: -2, high: -1}\n")
+    (bad / "inverted.yaml").write_text("params:\n  reward.collision: {low: -1, high: -2}\n")
+    monkeypatch.setattr(sw, "SWEEPS_DIR", bad)
+    with pytest.raises(ConfigError, match="reward.colision"):
+        load_space("typo")
+    with pytest.raises(ConfigError, match="low < high"):
+        load_space("inverted")
+
+
+# ---------------------------------------------------------------- PostgreSQL workers
+def _pg_bin() -> Path | None:
+    found = shutil.which("initdb")
+    if found:
+        return Path(found).resolve().parent
+    candidates = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
+    return Path(candidates[-1]).parent if candidates else None
+
+
+@pytest.fixture(scope="module")
+def postgres():
+    """A throwaway PostgreSQL server on localhost (installed by .ci/run from Debian)."""
+    bindir = _pg_bin()
+    if bindir is None:
+        pytest.skip("PostgreSQL is not installed (.ci/run installs Debian's postgresql)")
+    pytest.importorskip("psycopg", reason="psycopg[binary] is in the dev extra")
+    data = Path(tempfile.mkdtemp(prefix="bgap-pg-"))  # outside pytest's private tmp dirs
+    as_user: list[str] = []
+    if os.geteuid() == 0:  # PostgreSQL refuses to run as root
+        if shutil.which("runuser") is None:
+            pytest.skip("running as root without runuser: cannot start PostgreSQL")
+        shutil.chown(data, "postgres")
+        as_user = ["runuser", "-u", "postgres", "--"]
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    run = lambda *a: subprocess.run([*as_user, *a], check=True, capture_output=True)  # noqa: E731
+    run(str(bindir / "initdb"), "-D", str(data / "db"), "-A", "trust", "-U", "bgap")
+    run(
+        str(bindir / "pg_ctl"),
+        "-D",
+        str(data / "db"),
+        "-w",
+        "-l",
+        str(data / "log"),
+        "-o",
+        f"-p {port} -k {data} -c listen_addresses=127.0.0.1",
+        "start",
+    )
+    yield f"postgresql://bgap@127.0.0.1:{port}/postgres"
+    run(str(bindir / "pg_ctl"), "-D", str(data / "db"), "-m", "fast", "stop")
+    shutil.rmtree(data, ignore_errors=True)
+
+
+def _worker(tmp_path: Path, url: str, trials: int, study: str) -> subprocess.Popen:
+    cmd = [
+        sys.executable,
+        "-m",
+        "bgap.sweep",
+        *TINY,
+        f"trials={trials}",
+        "mode=single",
+        f"storage={url}",
+        f"study={study}",
+        f"root={tmp_path}",
+        f"preset={tmp_path}/tuned.yaml",
+    ]
+    return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
+def test_two_workers_share_one_postgres_study(tmp_path, postgres):
+    workers = [_worker(tmp_path, postgres, 4, "shared") for _ in range(2)]
+    for w in workers:
+        out, _ = w.communicate(timeout=600)
+        assert w.returncode == 0, out[-2000:]
+    study = optuna.load_study(study_name="shared", storage=postgres)
+    finished = [t for t in study.trials if t.state.is_finished()]
+    # MaxTrialsCallback stops both workers at 4; one in flight may finish as a 5th.
+    assert 4 <= len(finished) <= 5
+    runs = [t.user_attrs["run_dir"] for t in study.trials]
+    assert len(set(runs)) == len(runs)  # no trial number (run folder) done twice
+
+
+def test_a_killed_workers_trial_does_not_block_the_study(tmp_path, postgres, monkeypatch):
+    from optuna.trial import TrialState
+
+    w = _worker(tmp_path, postgres, 3, "killed")
+    storage = optuna.storages.RDBStorage(postgres)
+    deadline = time.time() + 120
+    while time.time() < deadline:  # wait for its first trial to start, then kill it
+        try:
+            study = optuna.load_study(study_name="killed", storage=storage)
+            if any(t.state == TrialState.RUNNING for t in study.trials):
+                break
+        except KeyError:
+            pass
+        time.sleep(0.5)
+    w.send_signal(signal.SIGKILL)
+    w.wait()
+    stale = [t.number for t in study.trials if t.state == TrialState.RUNNING]
+    assert stale
+    # A new worker, after the heartbeat grace period, fails the stale trial and finishes.
+    import bgap.calibrate as cal
+    from bgap.sweep import sweep as run_sweep
+
+    monkeypatch.setattr(cal, "HEARTBEAT", (1, 2))
+    time.sleep(3)
+    study = run_sweep(
+        _cfg(tmp_path, "trials=3", "mode=single", f"storage={postgres}", "study=killed"),
+        progress=False,
+    )
+    states = {t.number: t.state for t in study.trials}
+    assert all(states[n] == TrialState.FAIL for n in stale)
+    assert sum(s == TrialState.COMPLETE or s == TrialState.PRUNED for s in states.values()) >= 3
