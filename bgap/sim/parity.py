@@ -100,9 +100,9 @@ def run_vector(config: dict, seeds: list[int], batch: int = 64) -> pd.DataFrame:
         while live.any():
             actions = np.full(len(chunk), scripted_action(step))
             _, _, term, trunc, _ = venv.step(actions)
-            for b in np.flatnonzero(live):
-                speeds[b].extend(venv.frames[b, :, 1:, speed_col])
-                lanes[b].extend(venv.frames[b, :, 1:, lane_col])
+            for b in np.flatnonzero(live):  # copies: venv.frames is overwritten every step
+                speeds[b].extend(venv.frames[b, :, 1:, speed_col].copy())
+                lanes[b].extend(venv.frames[b, :, 1:, lane_col].copy())
                 if term[b] or trunc[b]:
                     live[b], crashed[b] = False, bool(term[b])
             step += 1
@@ -187,10 +187,20 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--duration", type=float, default=None, help="episode length [s]")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="results/parity")
+    parser.add_argument("--backends", default="vector,highway")
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="keep the other backends' rows of an existing episodes.csv (same settings)",
+    )
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     frames = []
+    backends = args.backends.split(",")
+    if args.reuse and (out / "episodes.csv").exists():
+        old = pd.read_csv(out / "episodes.csv")
+        frames.append(old[~old.backend.isin(backends)])
     mixes = [float(m) for m in args.mixes.split(",")]
     seeds = list(range(args.seed, args.seed + args.episodes))
     for mix in tqdm(mixes, desc="mixes"):
@@ -199,6 +209,8 @@ def main(argv: list[str] | None = None) -> None:
             overrides.append(f"env.duration={args.duration}")
         config = env_config(validate(compose("simulate", overrides)))
         for backend, run in (("vector", run_vector), ("highway", run_highway)):
+            if backend not in backends:
+                continue
             df = run(config, seeds)
             df["mix"], df["backend"] = mix, backend
             frames.append(df)
