@@ -84,9 +84,9 @@ def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
                 row[f"{m}_lo"], row[f"{m}_hi"] = 100 * lo, 100 * hi
             else:
                 row[f"{m}_lo"], row[f"{m}_hi"] = _t(episodes[m].to_numpy())
-        if len(g) > 1:  # a rate stays within [0, 100]
-            row["collision_pct_lo"] = max(row["collision_pct_lo"], 0.0)
-            row["collision_pct_hi"] = min(row["collision_pct_hi"], 100.0)
+        for m in METRICS:  # every metric is non-negative; a rate is at most 100
+            row[f"{m}_lo"] = max(row[f"{m}_lo"], 0.0)
+        row["collision_pct_hi"] = min(row["collision_pct_hi"], 100.0)
         rows.append(row)
     return pd.DataFrame(rows), per_seed
 
