@@ -226,8 +226,13 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m bgap.bench", description=__doc__)
     parser.add_argument("what", choices=sorted(BENCHES))
     parser.add_argument("--seconds", type=float, default=10.0, help="wall time per measurement")
+    parser.add_argument("--envs", type=int, default=64, help="sim: batched environments")
+    parser.add_argument("--threads", type=int, default=2, help="sim: threads for both peers")
     args = parser.parse_args(argv)
-    BENCHES[args.what](args.seconds)
+    if args.what == "sim":
+        bench_sim(args.seconds, num_envs=args.envs, threads=args.threads)
+    else:
+        BENCHES[args.what](args.seconds)
 
 
 BENCHES: dict[str, Callable[[float], None]] = {
