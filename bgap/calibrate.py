@@ -84,15 +84,29 @@ def open_storage(url: str, key: str = "calibrate.storage") -> optuna.storages.Ba
 
     RDB storages get a heartbeat: a trial whose worker died is marked failed and retried
     instead of blocking the study."""
+    import time
+
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
     try:
         if url.startswith("journal:"):
             from optuna.storages.journal import JournalFileBackend
 
             return optuna.storages.JournalStorage(JournalFileBackend(url[len("journal:") :]))
-        with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna 5
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            interval, grace = HEARTBEAT
-            return optuna.storages.RDBStorage(url, heartbeat_interval=interval, grace_period=grace)
+        interval, grace = HEARTBEAT
+        for attempt in range(6):
+            try:
+                with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna 5
+                    warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                    return optuna.storages.RDBStorage(
+                        url, heartbeat_interval=interval, grace_period=grace
+                    )
+            except (IntegrityError, ProgrammingError):
+                # Workers started together race to create Optuna's tables in an empty
+                # database; the loser finds them made on a second try.
+                if attempt == 5:
+                    raise
+                time.sleep(0.5 * (attempt + 1))
     except Exception as err:  # noqa: BLE001 - any driver error means the same to the user
         raise ConfigError(
             f"{key}={url!r} cannot be opened ({type(err).__name__}: "

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -142,13 +142,20 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
     from bgap.train import train
 
     values = suggest(trial, space)
+    budget = [  # the sweep's own profile values (profile.train_steps=... on its command line)
+        f"profile.{k}={'null' if v is None else v}" for k, v in asdict(cfg.profile).items()
+    ]
     overrides = [
         f"env={cfg.env.name}",
+        f"behavior={cfg.behavior.name}",
+        f"reward={cfg.reward.name}",
+        f"agent={cfg.agent.name}",
         f"backend={cfg.backend}",
         f"seed={cfg.seed}",
         f"mix={cfg.mix}",
         f"mix_sampling={cfg.mix_sampling}",
         f"profile={cfg.profile.name}",
+        *budget,
         *cfg.overrides,
         *(f"{k}={v}" for k, v in values.items()),
     ]
