@@ -29,8 +29,9 @@ CLASSES = (CONSERVATIVE, AGGRESSIVE)
 # Paper figure colours (RGB): ego green, aggressive red, conservative blue.
 COLORS = {EGO: (50, 200, 0), AGGRESSIVE: (220, 40, 40), CONSERVATIVE: (40, 90, 220)}
 
-# Field of DriverParams -> IDMVehicle attribute, with the conversion from paper units.
-_ATTRIBUTES = {
+# Field of DriverParams -> IDMVehicle attribute, with the conversion from paper units (also
+# the vectorised backend's mapping, bgap.sim.vector).
+DRIVER_ATTRIBUTES = {
     "time_gap": ("TIME_WANTED", lambda v: v),
     "min_distance": ("DISTANCE_WANTED", lambda v: v + Vehicle.LENGTH),  # bumper -> centre gap
     "acc": ("COMFORT_ACC_MAX", lambda v: v),
@@ -45,7 +46,7 @@ _ATTRIBUTES = {
 
 def is_stock(params: Mapping[str, Any]) -> bool:
     """True when a class leaves every parameter to highway-env (the stock IDM)."""
-    return all(params.get(k) is None for k in (*_ATTRIBUTES, "v0"))
+    return all(params.get(k) is None for k in (*DRIVER_ATTRIBUTES, "v0"))
 
 
 class BehaviorVehicle(IDMVehicle):
@@ -91,7 +92,7 @@ def create_driver(
     vehicle = (IDMVehicle if stock else BehaviorVehicle).create_random(road, spacing=spacing)
     if params.get("delta") is None:
         vehicle.randomize_behavior()  # highway-env's DELTA draw in [3.5, 4.5]
-    for key, (attr, convert) in _ATTRIBUTES.items():
+    for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
         if params.get(key) is not None:
             setattr(vehicle, attr, float(convert(params[key])))
     if params.get("v0") is not None:
@@ -105,3 +106,16 @@ def create_driver(
 def count_aggressive(mix: float, n: int) -> int:
     """round(mix * n), halves rounded up (Python's round() would round 2.5 to 2)."""
     return int(np.floor(mix * n + 0.5))
+
+
+def mix_stream(seed: int) -> np.random.Generator:
+    """The random stream of the per-episode mix draws of an env seeded ``seed``: its own, so
+    that the traffic's draws are the same with and without mix sampling."""
+    return np.random.default_rng(seed + 7919)
+
+
+def sample_mix(rng: np.random.Generator, mode: str) -> float:
+    """One training mix: ``uniform`` in [0, 1] or ``paper`` (one of the paper's mixes)."""
+    from bgap.config import PAPER_MIXES
+
+    return float(rng.uniform(0, 1) if mode == "uniform" else rng.choice(PAPER_MIXES))

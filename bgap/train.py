@@ -31,9 +31,9 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 from bgap.agents.dqn import DQN
 from bgap.agents.per import PrioritizedReplayBuffer
+from bgap.behaviors import mix_stream, sample_mix
 from bgap.config import (
     CONF_DIR,
-    PAPER_MIXES,
     BehaviorConfig,
     ExperimentConfig,
     env_config,
@@ -92,10 +92,10 @@ class MixSampler(gym.Wrapper):
         self._rng = np.random.default_rng(0)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        if seed is not None:  # its own stream, so the traffic's draws stay as without it
-            self._rng = np.random.default_rng(seed + 7919)
+        if seed is not None:
+            self._rng = mix_stream(seed)
         rng = self._rng
-        mix = rng.uniform(0, 1) if self.mode == "uniform" else rng.choice(PAPER_MIXES)
+        mix = sample_mix(rng, self.mode)
         self.env.unwrapped.config["mix"] = float(mix)
         return self.env.reset(seed=seed, options=options)
 

@@ -100,7 +100,7 @@ def sort_by_x(f, b, n, order, rank):
 
 
 @_jit
-def neighbours(f, g, b, n, i, lane, order, rank):
+def neighbours(f, b, n, i, lane, order, rank):
     """Road.neighbour_vehicles(vehicle i, lane): (preceding, following), -1 for none.
 
     highway-env scans every vehicle: the preceding one has the smallest s >= s_i (ties: the
@@ -196,12 +196,12 @@ def reachable(f, b, i, lane, lanes):
 @_jit
 def mobil(f, g, p, b, n, i, lane, order, rank):
     """IDMVehicle.mobil: should vehicle i move to ``lane``?"""
-    new_pre, new_fol = neighbours(f, g, b, n, i, lane, order, rank)
+    new_pre, new_fol = neighbours(f, b, n, i, lane, order, rank)
     new_fol_a = acceleration(f, g, p, b, i, new_fol, new_pre)
     new_fol_pred_a = acceleration(f, g, p, b, i, new_fol, i)
     if new_fol_pred_a < -p[b, i, P_BSAFE]:
         return False
-    old_pre, old_fol = neighbours(f, g, b, n, i, g[b, i, LANE], order, rank)
+    old_pre, old_fol = neighbours(f, b, n, i, g[b, i, LANE], order, rank)
     self_pred_a = acceleration(f, g, p, b, i, i, new_pre)
     self_a = acceleration(f, g, p, b, i, i, old_pre)
     old_fol_a = acceleration(f, g, p, b, i, old_fol, i)
@@ -231,9 +231,7 @@ def change_lane_policy(f, g, p, b, n, i, lanes, order, rank):
         return
     f[b, i, TIMER] = 0.0
     for candidate in (lane - 1, lane + 1):
-        if candidate < 0 or candidate >= lanes:
-            continue
-        if not reachable(f, b, i, candidate, lanes):
+        if not reachable(f, b, i, candidate, lanes):  # also: the lane exists
             continue
         if abs(f[b, i, SPEED]) < 1:
             continue
@@ -249,10 +247,10 @@ def idm_act(f, g, p, b, n, i, lanes, order, rank):
         return
     change_lane_policy(f, g, p, b, n, i, lanes, order, rank)
     f[b, i, STEER] = steering_control(f, b, i, g[b, i, TARGET_LANE])
-    front, _ = neighbours(f, g, b, n, i, g[b, i, LANE], order, rank)
+    front, _ = neighbours(f, b, n, i, g[b, i, LANE], order, rank)
     acc = acceleration(f, g, p, b, i, i, front)
     if g[b, i, LANE] != g[b, i, TARGET_LANE]:
-        front, _ = neighbours(f, g, b, n, i, g[b, i, TARGET_LANE], order, rank)
+        front, _ = neighbours(f, b, n, i, g[b, i, TARGET_LANE], order, rank)
         acc = min(acc, acceleration(f, g, p, b, i, i, front))
     amax = p[b, i, P_AMAX]
     f[b, i, ACC] = min(max(acc, -amax), amax)
@@ -475,15 +473,13 @@ def record(f, g, b, n, out, t):
 
 
 @nb.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
-def step_batch(f, g, p, active, actions, speeds, frames, dt, lanes, rec):
-    """Advance every active env by one policy step: the ego's meta-action on the first frame
+def step_batch(f, g, p, actions, speeds, frames, dt, lanes, rec):
+    """Advance every env by one policy step: the ego's meta-action on the first frame
     (AbstractEnv._simulate), then ``frames`` simulation frames. When ``rec`` has one slot per
     frame (shape[1] == frames) every frame's state is written into it."""
     n_env, n = f.shape[0], f.shape[1]
     recording = rec.shape[1] == frames and rec.shape[0] == n_env
     for b in nb.prange(n_env):
-        if not active[b]:
-            continue
         pa = np.empty((4, 2))
         pb = np.empty((4, 2))
         order = np.arange(n)

@@ -23,9 +23,16 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
+from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.behaviors import count_aggressive
-from bgap.config import PAPER_MIXES
+from bgap.behaviors import (
+    DRIVER_ATTRIBUTES,
+    BehaviorVehicle,
+    count_aggressive,
+    is_stock,
+    mix_stream,
+    sample_mix,
+)
 from bgap.sim import core
 from bgap.sim.core import (
     ACC,
@@ -53,25 +60,38 @@ from bgap.sim.core import (
 LABEL_NAMES = {EGO: "ego", CONSERVATIVE: "conservative", AGGRESSIVE: "aggressive"}
 _CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
 
-# highway-env's IDMVehicle defaults, in core.P_* order (DISTANCE_WANTED = 5 m + LENGTH).
-IDM_DEFAULTS = np.array([1.5, 10.0, 3.0, 5.0, 4.0, 0.0, 0.2, 2.0, 6.0, 40.0, 0.0])
-# DriverParams field -> (parameter column, conversion from the paper's units)
-_PARAM_FIELDS = {
-    "time_gap": (core.P_T, lambda v: v),
-    "min_distance": (core.P_D0, lambda v: v + core.LENGTH),
-    "acc": (core.P_A, lambda v: v),
-    "dec": (core.P_B, lambda v: v),
-    "delta": (core.P_DELTA, lambda v: v),
-    "politeness": (core.P_POLITENESS, lambda v: v),
-    "min_acc_gain": (core.P_GAIN, lambda v: v),
-    "b_safe": (core.P_BSAFE, lambda v: v),
-    "acc_max": (core.P_AMAX, lambda v: v),
+# Parameter column of each IDMVehicle attribute, in highway-env's units except P_B, which
+# holds the braking magnitude -COMFORT_ACC_MIN.
+_COLUMNS = {
+    "TIME_WANTED": core.P_T,
+    "DISTANCE_WANTED": core.P_D0,
+    "COMFORT_ACC_MAX": core.P_A,
+    "COMFORT_ACC_MIN": core.P_B,
+    "DELTA": core.P_DELTA,
+    "POLITENESS": core.P_POLITENESS,
+    "LANE_CHANGE_MIN_ACC_GAIN": core.P_GAIN,
+    "LANE_CHANGE_MAX_BRAKING_IMPOSED": core.P_BSAFE,
+    "ACC_MAX": core.P_AMAX,
+    "MAX_SPEED": core.P_VMAX,
 }
 RECORD_FIELDS = ("x", "y", "vx", "vy", "speed", "lane", "crashed")
 
 
-def _is_stock(params: dict[str, Any]) -> bool:
-    return all(params.get(k) is None for k in (*_PARAM_FIELDS, "v0"))
+def _column_value(attr: str, value: float) -> float:
+    return -value if attr == "COMFORT_ACC_MIN" else value
+
+
+def driver_params(vehicle: Any) -> np.ndarray:
+    """The IDM/MOBIL attributes of a highway-env vehicle (or vehicle class) as a parameter
+    row; P_OWN is left 0."""
+    row = np.zeros(N_PARAM)
+    for attr, col in _COLUMNS.items():
+        row[col] = _column_value(attr, float(getattr(vehicle, attr)))
+    return row
+
+
+# highway-env's IDMVehicle defaults (DISTANCE_WANTED = 5 m + LENGTH, DELTA 4, MAX_SPEED 40).
+IDM_DEFAULTS = driver_params(IDMVehicle)
 
 
 def check_supported(config: dict[str, Any]) -> None:
@@ -174,7 +194,6 @@ class VectorHighway(gym.vector.VectorEnv):
         self.g = np.zeros((b, n_veh, N_INT), dtype=np.int64)
         self.p = np.zeros((b, n_veh, N_PARAM))
         self.steps = np.zeros(b, dtype=np.int64)
-        self.record = record
         shape = (b, self.frames_per_step, n_veh, len(RECORD_FIELDS)) if record else (1, 1, 1, 1)
         self.frames = np.zeros(shape)
         self._obs = np.zeros((b, self.rows, 5), dtype=np.float32)
@@ -218,10 +237,9 @@ class VectorHighway(gym.vector.VectorEnv):
         idx = core.speed_to_index(25.0, self.speeds)
         g[0, SPEED_INDEX], f[0, TARGET_SPEED] = idx, self.speeds[idx]
         g[0, LABEL] = EGO
-        if self.mix_sampling != "fixed":  # its own stream: the traffic's draws stay the same
-            mrng = self._mix_rngs[b]
-            mix = mrng.uniform(0, 1) if self.mix_sampling == "uniform" else mrng.choice(PAPER_MIXES)
-            self.n_aggressive[b] = count_aggressive(float(mix), n)
+        if self.mix_sampling != "fixed":
+            mix = sample_mix(self._mix_rngs[b], self.mix_sampling)
+            self.n_aggressive[b] = count_aggressive(mix, n)
         k = int(self.n_aggressive[b])
         labels = np.array([AGGRESSIVE] * k + [CONSERVATIVE] * (n - k))
         labels = rng.permutation(labels)
@@ -242,15 +260,15 @@ class VectorHighway(gym.vector.VectorEnv):
                 continue
             params = self.behavior[name]
             p[rows, core.P_DELTA] = deltas[rows - 1]
-            for key, (col, convert) in _PARAM_FIELDS.items():
+            for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
                 if params.get(key) is not None:
-                    p[rows, col] = float(convert(params[key]))
+                    p[rows, _COLUMNS[attr]] = _column_value(attr, float(convert(params[key])))
             if params.get("v0") is not None:
                 s = float(params.get("v0_spread") or 0.0)
                 f[rows, TARGET_SPEED] = float(params["v0"]) * rng.uniform(1 - s, 1 + s, rows.size)
-            if not _is_stock(params):
+            if not is_stock(params):
                 p[rows, core.P_OWN] = 1.0
-                p[rows, core.P_VMAX] = 50.0  # BehaviorVehicle.MAX_SPEED
+                p[rows, core.P_VMAX] = BehaviorVehicle.MAX_SPEED
         self.steps[b] = 0
 
     def load_scene(self, b: int, scene: Scene) -> None:
@@ -277,7 +295,7 @@ class VectorHighway(gym.vector.VectorEnv):
             if len(seeds) != self.num_envs:
                 raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} envs")
             self._rngs = [np.random.default_rng(s) for s in seeds]
-            self._mix_rngs = [np.random.default_rng(s + 7919) for s in seeds]
+            self._mix_rngs = [mix_stream(s) for s in seeds]
         for b in range(self.num_envs):
             self._spawn(b)
         obs = self._observe()
@@ -289,12 +307,10 @@ class VectorHighway(gym.vector.VectorEnv):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
         before = self.g[:, 0, TARGET_LANE].copy()
-        active = np.ones(self.num_envs, dtype=np.bool_)
         core.step_batch(
             self.f,
             self.g,
             self.p,
-            active,
             actions,
             self.speeds,
             self.frames_per_step,
@@ -383,10 +399,6 @@ def initial_states(venv: VectorHighway) -> np.ndarray:
 
 def scene_from_highway(env: Any) -> Scene:
     """The current scene of a highway-env ``BehaviorHighwayEnv`` in the kernel layout."""
-    from highway_env.vehicle.behavior import IDMVehicle
-
-    from bgap.behaviors import BehaviorVehicle
-
     env = env.unwrapped
     vehicles = env.road.vehicles
     ego = env.vehicle
@@ -414,11 +426,6 @@ def scene_from_highway(env: Any) -> Scene:
             raise ValueError(f"vehicle {i} is a {type(v).__name__}, not an IDM driver")
         g[i, LABEL] = _CLASS_CODES[getattr(v, "bgap_label", "conservative")]
         f[i, TIMER] = v.timer
-        p[i, core.P_T], p[i, core.P_D0] = v.TIME_WANTED, v.DISTANCE_WANTED
-        p[i, core.P_A], p[i, core.P_B] = v.COMFORT_ACC_MAX, -v.COMFORT_ACC_MIN
-        p[i, core.P_DELTA], p[i, core.P_POLITENESS] = v.DELTA, v.POLITENESS
-        p[i, core.P_GAIN] = v.LANE_CHANGE_MIN_ACC_GAIN
-        p[i, core.P_BSAFE] = v.LANE_CHANGE_MAX_BRAKING_IMPOSED
-        p[i, core.P_AMAX] = v.ACC_MAX
+        p[i] = driver_params(v)
         p[i, core.P_OWN] = float(isinstance(v, BehaviorVehicle))
     return Scene(f, g, p, steps=int(round(env.time * env.config["policy_frequency"])))
