@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import warnings
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -26,7 +25,7 @@ import hydra
 import numpy as np
 import optuna
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from bgap.behaviors import AGGRESSIVE, CLASSES, CONSERVATIVE
 from bgap.config import (
@@ -39,7 +38,9 @@ from bgap.config import (
     env_preset,
     load,
     register_configs,
+    write_preset,
 )
+from bgap.studies import open_storage, sqlite_url
 
 # Table I of the paper, for the comparison table.
 PAPER_TABLE = {
@@ -66,53 +67,8 @@ PAPER_TABLE = {
 }
 
 
-# Seconds between a running trial's heartbeats, and without one before it counts as dead.
-HEARTBEAT = (30, 90)
-
-
 def storage_url(cfg: CalibrateAppConfig) -> str:
-    url = cfg.calibrate.storage
-    if url:
-        return url
-    path = Path(cfg.root) / "calibration" / "optuna.db"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    return f"sqlite:///{path.resolve()}"
-
-
-def open_storage(url: str, key: str = "calibrate.storage") -> optuna.storages.BaseStorage:
-    """The storage behind ``url``, opened now so that a bad URL fails before any simulation.
-
-    RDB storages get a heartbeat: a trial whose worker died is marked failed and retried
-    instead of blocking the study."""
-    import time
-
-    from sqlalchemy.exc import IntegrityError, ProgrammingError
-
-    try:
-        if url.startswith("journal:"):
-            from optuna.storages.journal import JournalFileBackend
-
-            return optuna.storages.JournalStorage(JournalFileBackend(url[len("journal:") :]))
-        interval, grace = HEARTBEAT
-        for attempt in range(6):
-            try:
-                with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna 5
-                    warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-                    return optuna.storages.RDBStorage(
-                        url, heartbeat_interval=interval, grace_period=grace
-                    )
-            except (IntegrityError, ProgrammingError):
-                # Workers started together race to create Optuna's tables in an empty
-                # database; the loser finds them made on a second try.
-                if attempt == 5:
-                    raise
-                time.sleep(0.5 * (attempt + 1))
-    except Exception as err:  # noqa: BLE001 - any driver error means the same to the user
-        raise ConfigError(
-            f"{key}={url!r} cannot be opened ({type(err).__name__}: "
-            f"{str(err).splitlines()[0][:160]}); use sqlite:///PATH, postgresql://..., or "
-            "journal:PATH"
-        ) from None
+    return cfg.calibrate.storage or sqlite_url(Path(cfg.root) / "calibration")
 
 
 def study_name(cfg: CalibrateAppConfig, label: str) -> str:
@@ -209,14 +165,19 @@ def start_params(cfg: CalibrateAppConfig, label: str) -> dict[str, float] | None
     return start
 
 
-def calibrate_class(cfg: CalibrateAppConfig, label: str, progress: bool = True) -> optuna.Study:
+def calibrate_class(
+    cfg: CalibrateAppConfig,
+    label: str,
+    progress: bool = True,
+    storage: optuna.storages.BaseStorage | None = None,
+) -> optuna.Study:
     """Run (or continue) the study of class ``label`` until it holds ``calibrate.trials``
-    completed trials."""
+    completed trials (in ``storage``, default: the config's)."""
     from optuna.study import MaxTrialsCallback
     from optuna.trial import TrialState
 
     c = cfg.calibrate
-    storage = open_storage(storage_url(cfg))
+    storage = storage or open_storage(storage_url(cfg), key="calibrate.storage")
     study = optuna.create_study(
         study_name=study_name(cfg, label),
         storage=storage,
@@ -251,24 +212,6 @@ def calibrate_class(cfg: CalibrateAppConfig, label: str, progress: bool = True) 
             show_progress_bar=progress,
         )
     return study
-
-
-def load_preset(path: str | Path) -> BehaviorConfig:
-    """A behaviour preset file (e.g. the one :func:`write_preset` wrote) as a validated
-    BehaviorConfig, without going through Hydra's search path."""
-    values = OmegaConf.load(path)
-    values.pop("defaults", None)
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(BehaviorConfig), values))
-
-
-def write_preset(behavior: BehaviorConfig, path: Path, note: str) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    body = OmegaConf.to_yaml(OmegaConf.structured(behavior))
-    body = "\n".join(
-        line for line in body.splitlines() if not line.endswith(": null")
-    )  # unset parameters keep highway-env's defaults
-    path.write_text(f"# {note}\ndefaults:\n  - base_behavior\n{body}\n")
-    return path
 
 
 def write_outputs(
@@ -343,7 +286,8 @@ def write_outputs(
 
 def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
     """Every class's study, then the preset and the report; returns the summary."""
-    open_storage(storage_url(cfg))  # fail on a bad URL before simulating anything
+    # Opened first: a bad URL fails before anything is simulated.
+    storage = open_storage(storage_url(cfg), key="calibrate.storage")
     # CMetric scores are relative to the scene, so one class's target depends on how the
     # other drives: calibrate the classes in turn, each against the other's latest best,
     # for calibrate.rounds rounds (coordinate descent). Each (round, class) is one study,
@@ -352,14 +296,15 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
     studies: dict[str, list[optuna.Study]] = {label: [] for label in cfg.calibrate.classes}
     for _ in range(cfg.calibrate.rounds):
         for label in cfg.calibrate.classes:
-            study = calibrate_class(replace(cfg, behavior=behavior), label, progress)
+            study = calibrate_class(replace(cfg, behavior=behavior), label, progress, storage)
             studies[label].append(study)
             behavior = with_params(behavior, label, dict(study.best_params))
     behavior = replace(behavior, name="calibrated")
     targets = ", ".join(f"{k} {v}" for k, v in asdict(cfg.calibrate.targets).items())
     write_preset(
         behavior,
-        Path(cfg.calibrate.preset),
+        "behavior",
+        cfg.calibrate.preset,
         f"Written by python -m bgap.calibrate (targets: {targets}); see results/calibration/.",
     )
     return write_outputs(cfg, studies, behavior)

@@ -541,6 +541,39 @@ class CalibrateAppConfig(BaseConfig):
     root: str = "outputs"
 
 
+@dataclass
+class SweepConfig(ExperimentConfig):
+    """``python -m bgap.sweep``: the experiment every trial starts from, plus the search."""
+
+    sweep: str = "reward"
+    """Search space ``sweeps/<sweep>.yaml`` (``reward`` or ``dqn``)."""
+    mode: str = "multi"
+    """``multi``: minimise collisions and maximise speed (Pareto front); ``single``: the
+    scalarisation collision % - speed_weight * speed, with pruning."""
+    trials: int = 20
+    """Finished trials wanted in the study, counted across workers and reruns."""
+    speed_weight: float = 2.0
+    """Collision percentage points one m/s of average speed is worth (single mode, and the
+    choice of the written preset on a Pareto front)."""
+    prune_every: int = 0
+    """Single mode: steps between intermediate evaluations (0: a quarter of the budget)."""
+    sweep_eval_episodes: int = 30
+    """Greedy evaluation episodes per trial (fixed seeds, the same for every trial)."""
+    storage: Optional[str] = None
+    """Optuna URL (sqlite:///..., postgresql://..., journal:PATH); default SQLite under root."""
+    study: Optional[str] = None
+    """Study name; default ``<sweep>-<mode>-<env>``."""
+    write_preset: bool = True
+    preset: Optional[str] = None
+    """Where the chosen preset goes; default ``conf/<group>/tuned.yaml``."""
+    overrides: list[str] = field(default_factory=list)
+    """Extra overrides every trial composes with (e.g. ["profile.train_steps=5000"])."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(self.mode in ("multi", "single"), "mode", self.mode, "use multi or single")
+
+
 def register_configs() -> None:
     """Register the schemas; YAML files name them in their defaults list."""
     cs = ConfigStore.instance()
@@ -556,6 +589,7 @@ def register_configs() -> None:
     cs.store(group="grid", name="base_grid", node=GridConfig)
     cs.store(group="calibrate", name="base_calibrate", node=CalibrationConfig)
     cs.store(name="base_calibrate_app", node=CalibrateAppConfig)
+    cs.store(name="base_sweep", node=SweepConfig)
 
 
 def validate(cfg: DictConfig) -> Any:
@@ -595,9 +629,28 @@ def env_preset(name: str) -> EnvConfig:
     if not path.exists():
         choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
         raise ConfigError(f"density {name!r} has no preset conf/env/{name}.yaml; use {choices}")
+    return load_preset(EnvConfig, path)
+
+
+def load_preset(schema: type, path: str | Path) -> Any:
+    """A config-group preset file as a validated ``schema`` object, without Hydra's search
+    path (its ``defaults`` list, naming the schema, is ignored)."""
     values = OmegaConf.load(path)
     values.pop("defaults", None)
-    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(EnvConfig), values))
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), values))
+
+
+def write_preset(node: Any, group: str, path: str | Path, note: str) -> Path:
+    """Write dataclass ``node`` as a preset of config group ``group`` (``group=<stem>`` then
+    selects it when ``path`` is ``conf/<group>/<stem>.yaml``), headed by the comment ``note``.
+    Null values are left out: the groups written so (behavior, reward, agent) default every
+    optional field to null."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = OmegaConf.to_yaml(OmegaConf.structured(node))
+    body = "\n".join(line for line in body.splitlines() if not line.endswith(": null"))
+    path.write_text(f"# {note}\ndefaults:\n  - base_{group}\n{body}\n")
+    return path
 
 
 def env_config(cfg: BaseConfig | DictConfig) -> dict[str, Any]:

@@ -19,48 +19,31 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import hydra
 import optuna
 import pandas as pd
 import yaml
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
+from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.config import CONF_DIR, ConfigError, ExperimentConfig, compose, load, validate
+from bgap.config import (
+    CONF_DIR,
+    ConfigError,
+    ExperimentConfig,
+    SweepConfig,
+    compose,
+    load,
+    register_configs,
+    validate,
+    write_preset,
+)
+from bgap.studies import open_storage, sqlite_url
 
 SWEEPS_DIR = Path(CONF_DIR).parent / "sweeps"
-
-
-@dataclass
-class SweepConfig(ExperimentConfig):
-    """``python -m bgap.sweep``: the experiment every trial starts from, plus the search."""
-
-    sweep: str = "reward"
-    """Search space ``sweeps/<sweep>.yaml`` (``reward`` or ``dqn``)."""
-    mode: str = "multi"
-    """``multi``: minimise collisions and maximise speed (Pareto front); ``single``: the
-    scalarisation collision % - speed_weight * speed, with pruning."""
-    trials: int = 20
-    """Finished trials wanted in the study, counted across workers and reruns."""
-    speed_weight: float = 2.0
-    """Collision percentage points one m/s of average speed is worth (single mode, and the
-    choice of the written preset on a Pareto front)."""
-    prune_every: int = 0
-    """Single mode: steps between intermediate evaluations (0: a quarter of the budget)."""
-    sweep_eval_episodes: int = 30
-    """Greedy evaluation episodes per trial (fixed seeds, the same for every trial)."""
-    storage: Optional[str] = None
-    """Optuna URL (sqlite:///..., postgresql://..., journal:PATH); default SQLite under root."""
-    study: Optional[str] = None
-    """Study name; default ``<sweep>-<mode>-<env>``."""
-    write_preset: bool = True
-    preset: Optional[str] = None
-    """Where the chosen preset goes; default ``conf/<group>/tuned.yaml``."""
-    overrides: list[str] = field(default_factory=list)
-    """Extra overrides every trial composes with (e.g. ["profile.train_steps=5000"])."""
 
 
 def load_space(name: str) -> dict[str, dict[str, Any]]:
@@ -98,33 +81,24 @@ def suggest(trial: optuna.Trial, space: dict[str, dict[str, Any]]) -> dict[str, 
     return values
 
 
-def open_storage(url: str) -> optuna.storages.BaseStorage:
-    """Like the calibration's: journal files or RDB URLs, with heartbeats on RDB."""
-    from bgap.calibrate import open_storage as open_any
-
-    return open_any(url, key="storage")
-
-
 def study_name(cfg: SweepConfig) -> str:
     return cfg.study or f"{cfg.sweep}-{cfg.mode}-{cfg.env.name}"
 
 
-class _PruneCallback:
-    """SB3 callback: greedy evaluation every ``every`` steps, reported to the trial."""
+class PruneCallback(BaseCallback):
+    """Greedy evaluation every ``every`` steps, reported to the trial; stops a poor trial."""
 
-    def __new__(cls, trial: optuna.Trial, cfg: ExperimentConfig, every: int, score):
-        from stable_baselines3.common.callbacks import BaseCallback
+    def __init__(self, trial: optuna.Trial, cfg: ExperimentConfig, every: int, score) -> None:
+        super().__init__()
+        self.trial, self.cfg, self.every, self.score = trial, cfg, every, score
 
-        class Prune(BaseCallback):
-            def _on_step(self) -> bool:
-                if self.num_timesteps % every < self.training_env.num_envs and self.num_timesteps:
-                    value = score(self.model, cfg, episodes=10)
-                    trial.report(value, self.num_timesteps)
-                    if trial.should_prune():
-                        raise optuna.TrialPruned()
-                return True
-
-        return Prune()
+    def _on_step(self) -> bool:
+        if self.num_timesteps and self.num_timesteps % self.every < self.training_env.num_envs:
+            value = self.score(self.model, self.cfg, episodes=10)
+            self.trial.report(value, self.num_timesteps)
+            if self.trial.should_prune():
+                raise optuna.TrialPruned()
+        return True
 
 
 def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
@@ -172,7 +146,7 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
     callbacks = []
     if cfg.mode == "single":
         every = cfg.prune_every or max(tcfg.profile.train_steps // 4, 1)
-        callbacks.append(_PruneCallback(trial, tcfg, every, score))
+        callbacks.append(PruneCallback(trial, tcfg, every, score))
     train(tcfg, progress=False, callbacks=callbacks)
     model = DQN.load(run_dir / "model.zip", device="cpu")
     crash, speed = evaluate_model(model, tcfg, cfg.sweep_eval_episodes)
@@ -188,13 +162,10 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     from optuna.study import MaxTrialsCallback
     from optuna.trial import TrialState
 
-    if cfg.mode not in ("multi", "single"):
-        raise ConfigError(f"mode={cfg.mode!r} is invalid: use multi or single")
     space = load_space(cfg.sweep)
     root = Path(cfg.root) / "sweeps"
     root.mkdir(parents=True, exist_ok=True)
-    url = cfg.storage or f"sqlite:///{(root / 'optuna.db').resolve()}"
-    storage = open_storage(url)
+    storage = open_storage(cfg.storage or sqlite_url(root))
     multi = cfg.mode == "multi"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
@@ -291,28 +262,16 @@ def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> Path:
         raise ConfigError(f"a sweep must stay inside one config group, got {sorted(groups)}")
     group = groups.pop()
     tcfg = validate(compose("train", [*trial.user_attrs["overrides"]]))
-    node = OmegaConf.structured(replace(getattr(tcfg, group), name="tuned"))
-    path = Path(cfg.preset) if cfg.preset else Path(CONF_DIR) / group / "tuned.yaml"
-    path.parent.mkdir(parents=True, exist_ok=True)
     note = (
-        f"# Written by python -m bgap.sweep sweep={cfg.sweep} mode={cfg.mode} "
+        f"Written by python -m bgap.sweep sweep={cfg.sweep} mode={cfg.mode} "
         f"(trial {trial.number}: {json.dumps(trial.user_attrs.get('collision_pct'))}% "
-        f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)\n"
+        f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)"
     )
-    path.write_text(f"{note}defaults:\n  - base_{group}\n{OmegaConf.to_yaml(node)}")
-    return path
+    path = Path(cfg.preset) if cfg.preset else Path(CONF_DIR) / group / "tuned.yaml"
+    return write_preset(replace(getattr(tcfg, group), name="tuned"), group, path, note)
 
 
-def register() -> None:
-    from hydra.core.config_store import ConfigStore
-
-    from bgap.config import register_configs
-
-    register_configs()
-    ConfigStore.instance().store(name="base_sweep", node=SweepConfig)
-
-
-register()
+register_configs()
 
 
 @hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="sweep")

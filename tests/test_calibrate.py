@@ -9,7 +9,15 @@ from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ConfigKeyError
 
 from bgap import calibrate as cal
-from bgap.config import CalibrateAppConfig, ConfigError, DriverParams, compose, validate
+from bgap.config import (
+    BehaviorConfig,
+    CalibrateAppConfig,
+    ConfigError,
+    DriverParams,
+    compose,
+    load_preset,
+    validate,
+)
 
 PAPER = cal.PAPER_TABLE
 
@@ -84,7 +92,7 @@ def test_rerun_resumes_the_stored_study(tmp_path):
 def test_written_preset_reproduces_its_scores(tmp_path):
     cfg = _cfg(tmp_path, "calibrate.classes=[aggressive]", "calibrate.trials=6")
     summary = cal.calibrate(cfg, progress=False)
-    behavior = cal.load_preset(tmp_path / "calibrated.yaml")
+    behavior = load_preset(BehaviorConfig, tmp_path / "calibrated.yaml")
     assert behavior.name == "calibrated"
     assert asdict(behavior.conservative) == asdict(cfg.behavior.conservative)  # untouched
     again = cal.scene_scores(cfg, behavior)

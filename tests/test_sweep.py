@@ -37,14 +37,10 @@ def test_multi_objective_sweep_writes_pareto_front_and_preset(tmp_path):
     assert paths["plot"].read_bytes()[:4] == b"\x89PNG"
     front = paths["pareto"].read_text().splitlines()
     assert len(front) - 1 == len(study.best_trials) >= 1
-    from omegaconf import OmegaConf
-
-    from bgap.config import RewardConfig
+    from bgap.config import RewardConfig, load_preset
     from bgap.sweep import chosen_trial
 
-    values = OmegaConf.load(tmp_path / "tuned.yaml")  # must fit the reward schema
-    values.pop("defaults")
-    reward = OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(RewardConfig), values))
+    reward = load_preset(RewardConfig, tmp_path / "tuned.yaml")  # must fit the reward schema
     chosen = chosen_trial(study, cfg)
     assert chosen.number in {t.number for t in study.best_trials}
     assert reward.name == "tuned"
@@ -169,10 +165,10 @@ def test_a_killed_workers_trial_does_not_block_the_study(tmp_path, postgres, mon
     stale = [t.number for t in study.trials if t.state == TrialState.RUNNING]
     assert stale
     # A new worker, after the heartbeat grace period, fails the stale trial and finishes.
-    import bgap.calibrate as cal
+    import bgap.studies as studies
     from bgap.sweep import sweep as run_sweep
 
-    monkeypatch.setattr(cal, "HEARTBEAT", (1, 2))
+    monkeypatch.setattr(studies, "HEARTBEAT", (1, 2))
     time.sleep(3)
     study = run_sweep(
         _cfg(tmp_path, "trials=3", "mode=single", f"storage={postgres}", "study=killed"),

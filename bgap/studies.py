@@ -1,0 +1,62 @@
+"""Optuna storages shared by the behaviour calibration and the sweeps.
+
+A study lives in a storage named by a URL: SQLite under the output root by default,
+``postgresql://...`` for several machines, or ``journal:PATH`` (a journal file) for several
+processes. Rerunning a command reopens the same study, so finished trials are kept.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+import optuna
+
+from bgap.config import ConfigError
+
+# Seconds between a running trial's heartbeats, and without one before it counts as dead.
+HEARTBEAT = (30, 90)
+
+
+def sqlite_url(folder: str | Path) -> str:
+    """The default storage: ``optuna.db`` in ``folder`` (created)."""
+    path = Path(folder) / "optuna.db"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return f"sqlite:///{path.resolve()}"
+
+
+def _rdb_storage(url: str) -> optuna.storages.RDBStorage:
+    interval, grace = HEARTBEAT
+    with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna 5
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        return optuna.storages.RDBStorage(url, heartbeat_interval=interval, grace_period=grace)
+
+
+def open_storage(url: str, key: str = "storage") -> optuna.storages.BaseStorage:
+    """The storage behind ``url``, opened now so that a bad URL fails before any work; the
+    error names the config ``key``.
+
+    RDB storages get a heartbeat: a trial whose worker died is marked failed and retried
+    instead of blocking the study."""
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
+    try:
+        if url.startswith("journal:"):
+            from optuna.storages.journal import JournalFileBackend
+
+            return optuna.storages.JournalStorage(JournalFileBackend(url[len("journal:") :]))
+        for attempt in range(5):
+            try:
+                return _rdb_storage(url)
+            except (IntegrityError, ProgrammingError):
+                # Workers started together race to create Optuna's tables in an empty
+                # database; the loser finds them made on a later try.
+                time.sleep(0.5 * (attempt + 1))
+        return _rdb_storage(url)  # the last try lets its error through
+    except Exception as err:  # noqa: BLE001 - any driver error means the same to the user
+        raise ConfigError(
+            f"{key}={url!r} cannot be opened ({type(err).__name__}: "
+            f"{str(err).splitlines()[0][:160]}); use sqlite:///PATH, postgresql://..., or "
+            "journal:PATH"
+        ) from None
