@@ -217,7 +217,8 @@ def evaluate(
     return pd.DataFrame(rows)
 
 
-def _wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95% Wilson interval of a rate of k events in n trials."""
     if n == 0:
         return math.nan, math.nan
     p = k / n
@@ -226,7 +227,8 @@ def _wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
     return centre - half, centre + half
 
 
-def _t_interval(x: np.ndarray) -> tuple[float, float]:
+def t_interval(x: np.ndarray) -> tuple[float, float]:
+    """95% Student t interval of the mean of x (NaN below two values)."""
     from scipy.stats import t
 
     if len(x) < 2:
@@ -240,9 +242,9 @@ def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for key, g in episodes.groupby(["policy", "mix", "density", "radius"], sort=False):
         crashes, n = int(g.crashed.sum()), len(g)
-        lo, hi = _wilson(crashes, n)
-        s_lo, s_hi = _t_interval(g.avg_speed.to_numpy())
-        l_lo, l_hi = _t_interval(g.lane_changes.to_numpy(dtype=float))
+        lo, hi = wilson_interval(crashes, n)
+        s_lo, s_hi = t_interval(g.avg_speed.to_numpy())
+        l_lo, l_hi = t_interval(g.lane_changes.to_numpy(dtype=float))
         rows.append(
             dict(zip(["policy", "mix", "density", "radius"], key, strict=True))
             | {

@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from bgap.evaluate import t_interval, wilson_interval
+
 MODEL = re.compile(r"^(?P<density>[a-z]+)-(?P<family>behavior_rich|default)-s(?P<seed>\d+)$")
 METRICS = {"collision_pct": "collision %", "avg_speed": "speed m/s", "lane_changes": "lane changes"}
 N_OF = {"sparse": 5, "dense": 40}
@@ -50,20 +52,12 @@ def load_episodes(results_dir: str | Path) -> pd.DataFrame:
     return df
 
 
-def _wilson(k: int, n: int) -> tuple[float, float]:
-    from bgap.evaluate import _wilson as wilson
-
-    return wilson(k, n)
-
-
 def _t(x: np.ndarray) -> tuple[float, float]:
-    from scipy import stats
-
+    """bgap.evaluate's t interval; one value (one seed, one episode) has no spread to show."""
     x = np.asarray(x, dtype=float)
-    if len(x) < 2 or np.all(x == x[0]):
+    if len(x) < 2:
         return float(np.mean(x)), float(np.mean(x))
-    lo, hi = stats.t.interval(0.95, len(x) - 1, loc=x.mean(), scale=stats.sem(x))
-    return float(lo), float(hi)
+    return t_interval(x)
 
 
 def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
@@ -80,7 +74,7 @@ def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
             if len(g) > 1:
                 row[f"{m}_lo"], row[f"{m}_hi"] = _t(g[m].to_numpy())
             elif m == "collision_pct":  # one seed: Wilson interval of the crash count
-                lo, hi = _wilson(int(episodes.crashed.sum()), len(episodes))
+                lo, hi = wilson_interval(int(episodes.crashed.sum()), len(episodes))
                 row[f"{m}_lo"], row[f"{m}_hi"] = 100 * lo, 100 * hi
             else:
                 row[f"{m}_lo"], row[f"{m}_hi"] = _t(episodes[m].to_numpy())

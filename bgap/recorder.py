@@ -100,23 +100,7 @@ class TrajectoryRecorder:
             return pd.DataFrame({c: [] for c in COLUMNS})
         data = np.concatenate(self._rows)
         labels = np.concatenate([np.asarray(lab, dtype=object) for lab in self._labels])
-        return pd.DataFrame(
-            {
-                "episode": data[:, 0].astype(np.int32),
-                "frame": data[:, 1].astype(np.int32),
-                "time": data[:, 2],
-                "vehicle_id": data[:, 3].astype(np.int32),
-                "label": labels.astype(str),
-                "is_ego": data[:, 3] == 0,
-                "x": data[:, 4],
-                "y": data[:, 5],
-                "vx": data[:, 6],
-                "vy": data[:, 7],
-                "speed": data[:, 8],
-                "lane": data[:, 9].astype(np.int16),
-                "crashed": data[:, 10].astype(bool),
-            }
-        )
+        return _table(data[:, 0], data[:, 1], data[:, 2], data[:, 3], labels, data[:, 4:])
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -133,21 +117,28 @@ def table_from_states(
     t, n = states.shape[:2]
     frame = np.repeat(np.arange(t, dtype=np.int32), n)
     vid = np.tile(np.arange(n, dtype=np.int32), t)
-    flat = states.reshape(t * n, -1)
+    labels_ = np.tile(np.asarray(labels, dtype=object), t)
+    return _table(
+        np.full(t * n, episode), frame, frame * dt, vid, labels_, states.reshape(t * n, -1)
+    )
+
+
+def _table(episode, frame, time, vehicle_id, labels, states) -> pd.DataFrame:
+    """The schema from one value per row; ``states`` holds x, y, vx, vy, speed, lane, crashed."""
     return pd.DataFrame(
         {
-            "episode": np.full(t * n, episode, dtype=np.int32),
-            "frame": frame,
-            "time": frame * dt,
-            "vehicle_id": vid,
-            "label": np.tile(np.asarray(labels, dtype=object), t).astype(str),
-            "is_ego": vid == 0,
-            "x": flat[:, 0],
-            "y": flat[:, 1],
-            "vx": flat[:, 2],
-            "vy": flat[:, 3],
-            "speed": flat[:, 4],
-            "lane": flat[:, 5].astype(np.int16),
-            "crashed": flat[:, 6].astype(bool),
+            "episode": episode.astype(np.int32),
+            "frame": frame.astype(np.int32),
+            "time": time,
+            "vehicle_id": vehicle_id.astype(np.int32),
+            "label": labels.astype(str),
+            "is_ego": vehicle_id == 0,
+            "x": states[:, 0],
+            "y": states[:, 1],
+            "vx": states[:, 2],
+            "vy": states[:, 3],
+            "speed": states[:, 4],
+            "lane": states[:, 5].astype(np.int16),
+            "crashed": states[:, 6].astype(bool),
         }
     )

@@ -117,7 +117,7 @@ def run_vector(config: dict, seeds: list[int], batch: int = 64) -> pd.DataFrame:
 def compare(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per mix, metric and backend: mean and 95% CI; per mix and metric: whether the
     backends' intervals overlap."""
-    from bgap.evaluate import _t_interval, _wilson
+    from bgap.evaluate import t_interval, wilson_interval
 
     rows = []
     metrics = [c for c in episodes.columns if c not in ("seed", "mix", "backend")]
@@ -126,11 +126,11 @@ def compare(episodes: pd.DataFrame) -> pd.DataFrame:
             x = group[metric].dropna().to_numpy()
             if metric == "crashed":
                 k = int(x.sum())
-                lo, hi = _wilson(k, len(x))
+                lo, hi = wilson_interval(k, len(x))
                 mean = k / max(len(x), 1)
             else:
                 mean = float(x.mean()) if len(x) else np.nan
-                lo, hi = _t_interval(x) if len(x) > 1 else (np.nan, np.nan)
+                lo, hi = t_interval(x)
             rows.append(
                 {
                     "mix": mix,
