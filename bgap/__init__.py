@@ -1,5 +1,7 @@
-"""bgap: behaviour-rich traffic simulation, CMetric and behaviour-aware navigation (B-GAP)."""
+"""bgap: behaviour-rich traffic simulation, CMetric and behaviour-aware navigation (B-GAP).
 
-import bgap.envs  # noqa: F401  (registers bgap/BehaviorHighway-v0)
+Importing ``bgap`` loads nothing else, so ``bgap.cmetric`` stays light; ``import bgap.envs``
+registers the gymnasium environment ``bgap/BehaviorHighway-v0``.
+"""
 
 __version__ = "0.1.0"

@@ -13,7 +13,8 @@ could never overspeed on a 30 m/s highway.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from dataclasses import asdict, dataclass, field
+from typing import Any, Optional
 
 import numpy as np
 from highway_env import utils
@@ -21,13 +22,72 @@ from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-AGGRESSIVE = "aggressive"
-CONSERVATIVE = "conservative"
-EGO = "ego"
-CLASSES = (CONSERVATIVE, AGGRESSIVE)
+from bgap.errors import check
+from bgap.presets import load_preset, preset_path
+from bgap.vocab import COLORS, PAPER_MIXES
 
-# Paper figure colours (RGB): ego green, aggressive red, conservative blue.
-COLORS = {EGO: (50, 200, 0), AGGRESSIVE: (220, 40, 40), CONSERVATIVE: (40, 90, 220)}
+
+@dataclass
+class DriverParams:
+    """IDM and MOBIL parameters of one driver class. ``None`` keeps highway-env's default.
+
+    A class whose parameters are all ``None`` is highway-env's stock ``IDMVehicle``, unchanged.
+    """
+
+    time_gap: Optional[float] = None
+    """IDM desired time gap T [s] (highway-env TIME_WANTED, 1.5)."""
+    min_distance: Optional[float] = None
+    """IDM minimum bumper-to-bumper gap s0 [m]; highway-env measures centre to centre, so its
+    DISTANCE_WANTED is s0 + vehicle length (default 5 + 5)."""
+    acc: Optional[float] = None
+    """IDM maximum comfortable acceleration a [m/s^2] (COMFORT_ACC_MAX, 3)."""
+    dec: Optional[float] = None
+    """IDM comfortable deceleration b [m/s^2], positive (-COMFORT_ACC_MIN, 5)."""
+    delta: Optional[float] = None
+    """IDM acceleration exponent; ``None`` draws it in [3.5, 4.5] as highway-env does."""
+    v0: Optional[float] = None
+    """IDM desired speed [m/s]; ``None`` keeps highway-env's (the initial speed, <= 30)."""
+    v0_spread: float = 0.0
+    """Relative uniform spread of v0 per vehicle: v0 * U(1 - s, 1 + s)."""
+    politeness: Optional[float] = None
+    """MOBIL politeness p in [0, 1] (POLITENESS, 0)."""
+    min_acc_gain: Optional[float] = None
+    """MOBIL minimum acceleration gain [m/s^2] (LANE_CHANGE_MIN_ACC_GAIN, 0.2)."""
+    b_safe: Optional[float] = None
+    """MOBIL safe braking limit imposed on the new follower [m/s^2] (2)."""
+    acc_max: Optional[float] = None
+    """Physical acceleration/braking limit [m/s^2] (ACC_MAX, 6)."""
+
+    def __post_init__(self) -> None:
+        for name in ("time_gap", "min_distance", "acc", "dec", "v0", "acc_max", "delta"):
+            v = getattr(self, name)
+            check(v is None or v > 0, f"behavior.*.{name}", v, "must be positive or null")
+        for name in ("min_acc_gain", "b_safe"):
+            v = getattr(self, name)
+            check(v is None or v >= 0, f"behavior.*.{name}", v, "must be >= 0 or null")
+        p = self.politeness
+        check(p is None or 0 <= p <= 1, "behavior.*.politeness", p, "must lie in [0, 1]")
+        s = self.v0_spread
+        check(0 <= s < 1, "behavior.*.v0_spread", s, "must lie in [0, 1)")
+
+    @property
+    def is_stock(self) -> bool:
+        return is_stock(asdict(self))
+
+
+@dataclass
+class BehaviorConfig:
+    """Parameters of the two driver classes (config group ``behavior``)."""
+
+    name: str = "paper"
+    conservative: DriverParams = field(default_factory=DriverParams)
+    aggressive: DriverParams = field(default_factory=DriverParams)
+
+
+def paper_behavior() -> BehaviorConfig:
+    """Table I of the paper, from its one home: the packaged preset ``behavior/paper.yaml``."""
+    return load_preset(BehaviorConfig, preset_path("behavior", "paper"))
+
 
 # Field of DriverParams -> IDMVehicle attribute, with the conversion from paper units (also
 # the vectorised backend's mapping, bgap.sim.vector).
@@ -108,6 +168,14 @@ def count_aggressive(mix: float, n: int) -> int:
     return int(np.floor(mix * n + 0.5))
 
 
+def episode_mix(config: Mapping[str, Any], rng: np.random.Generator) -> float:
+    """The aggressive fraction of the next episode of an environment with ``config``: its
+    ``mix``, or a draw from ``rng`` (the env's :func:`mix_stream`) when ``mix_sampling`` is
+    ``uniform`` or ``paper``. The one place both backends decide an episode's mix."""
+    mode = config.get("mix_sampling", "fixed")
+    return float(config["mix"]) if mode == "fixed" else sample_mix(rng, mode)
+
+
 def mix_stream(seed: int) -> np.random.Generator:
     """The random stream of the per-episode mix draws of an env seeded ``seed``: its own, so
     that the traffic's draws are the same with and without mix sampling."""
@@ -116,6 +184,4 @@ def mix_stream(seed: int) -> np.random.Generator:
 
 def sample_mix(rng: np.random.Generator, mode: str) -> float:
     """One training mix: ``uniform`` in [0, 1] or ``paper`` (one of the paper's mixes)."""
-    from bgap.config import PAPER_MIXES
-
     return float(rng.uniform(0, 1) if mode == "uniform" else rng.choice(PAPER_MIXES))

@@ -37,23 +37,18 @@ def bench_env(seconds: float) -> None:
 
     from bgap.config import compose, validate
     from bgap.envs import make_env
+    from bgap.scenario import env_config
 
     print(f"{'scenario':<10}{'highway-v0':>14}{'bgap paper':>14}{'bgap stock':>14}{'ratio':>8}")
-    for density, n in (("sparse", 5), ("dense", 40)):
-        settings = {
-            "lanes_count": 4,
-            "vehicles_count": n,
-            "duration": 60,
-            "policy_frequency": 1,
-            "simulation_frequency": 15,
-        }
+    for density in ("sparse", "dense"):
+        paper_cfg = validate(compose("simulate", [f"env={density}"]))
+        stock_cfg = validate(compose("simulate", [f"env={density}", "behavior=stock"]))
+        ours = env_config(paper_cfg)
+        keys = ("lanes_count", "vehicles_count", "duration", "policy_frequency")
+        settings = {k: ours[k] for k in (*keys, "simulation_frequency")}  # the same road
         ref = steps_per_second(gym.make("highway-v0", config=settings), seconds)
-        paper = steps_per_second(
-            make_env(validate(compose("simulate", [f"env={density}"]))), seconds
-        )
-        stock = steps_per_second(
-            make_env(validate(compose("simulate", [f"env={density}", "behavior=stock"]))), seconds
-        )
+        paper = steps_per_second(make_env(paper_cfg), seconds)
+        stock = steps_per_second(make_env(stock_cfg), seconds)
         print(f"{density:<10}{ref:>14.1f}{paper:>14.1f}{stock:>14.1f}{paper / ref:>8.2f}")
     print("policy steps/s, random ego actions; ratio = bgap paper / highway-v0")
 
@@ -103,8 +98,8 @@ def bench_cmetric(seconds: float) -> None:
     from bgap.cmetric import score_trajectories
     from bgap.cmetric.centrality import Scene, centralities
     from bgap.cmetric.io import load_trajectories
+    from bgap.cmetric.params import CMetricConfig
     from bgap.cmetric.reference import centralities_networkx
-    from bgap.config import CMetricConfig
 
     cfg = CMetricConfig()
     log = synthetic_log()
@@ -201,8 +196,9 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     EnvPool's C++ Highway-v0 at the same settings (when installed)."""
     import numba
 
-    from bgap.config import compose, env_config, validate
+    from bgap.config import compose, validate
     from bgap.envs import make_env
+    from bgap.scenario import env_config
 
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     print(f"{num_envs} envs, {threads} threads, random ego actions, policy steps/s")

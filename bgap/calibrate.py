@@ -8,9 +8,11 @@ traffic, or classes CMetric cannot tell apart). Studies live in an Optuna storag
 under the output root by default; PostgreSQL or a journal file for parallel workers), so an
 interrupted calibration continues where it stopped and ``optuna-dashboard <storage>`` shows it.
 
-Outputs: ``conf/behavior/calibrated.yaml`` (``behavior=calibrated``), and under
-``results/calibration/``: Table I beside ours (``table.md``, ``table.csv``), the scores the
-preset reaches (``scores.json``), ``convergence.png`` and ``scores.png``.
+Outputs: the behaviour preset (default ``<root>/presets/behavior/user_calibrated.yaml``,
+then ``behavior=user_calibrated``; the pipeline writes the packaged ``behavior/calibrated``),
+and in the report folder (default ``<root>/calibration``): Table I beside ours (``table.md``,
+``table.csv``), the scores the preset reaches (``scores.json``), ``convergence.png`` and
+``scores.png``.
 """
 
 from __future__ import annotations
@@ -21,50 +23,45 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-import hydra
 import numpy as np
 import optuna
 import pandas as pd
 from omegaconf import DictConfig
 
-from bgap.behaviors import AGGRESSIVE, CLASSES, CONSERVATIVE
-from bgap.config import (
-    CONF_DIR,
-    BehaviorConfig,
-    CalibrateAppConfig,
-    ConfigError,
-    DriverParams,
-    SimulateConfig,
-    env_preset,
-    load,
-    register_configs,
-    write_preset,
-)
+from bgap.behaviors import BehaviorConfig, DriverParams, paper_behavior
+from bgap.config import CalibrateAppConfig, app, load
+from bgap.errors import ConfigError
+from bgap.presets import selection_hint, write_preset
+from bgap.rollout import rollout
+from bgap.scenario import env_config, env_preset
 from bgap.studies import open_storage, sqlite_url
+from bgap.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 
-# Table I of the paper, for the comparison table.
+# Table I of the paper (the packaged behaviour preset), for the comparison table.
 PAPER_TABLE = {
-    CONSERVATIVE: {
-        "time_gap": 1.5,
-        "min_distance": 5.0,
-        "acc": 3.0,
-        "dec": 6.0,
-        "v0": 25.0,
-        "politeness": 0.5,
-        "min_acc_gain": 0.2,
-        "b_safe": 3.0,
-    },
-    AGGRESSIVE: {
-        "time_gap": 1.2,
-        "min_distance": 2.5,
-        "acc": 6.0,
-        "dec": 9.0,
-        "v0": 40.0,
-        "politeness": 0.0,
-        "min_acc_gain": 0.0,
-        "b_safe": 9.0,
-    },
+    label: {k: v for k, v in asdict(getattr(paper_behavior(), label)).items() if v is not None}
+    for label in CLASSES
 }
+TABLE_KEYS = (
+    "time_gap",
+    "min_distance",
+    "acc",
+    "dec",
+    "v0",
+    "politeness",
+    "min_acc_gain",
+    "b_safe",
+)
+"""The parameters of Table I, in its order."""
+
+
+def report_dir(cfg: CalibrateAppConfig) -> Path:
+    return Path(cfg.calibrate.out or Path(cfg.root) / "calibration")
+
+
+def preset_file(cfg: CalibrateAppConfig) -> Path:
+    default = Path(cfg.root) / "presets" / "behavior" / "user_calibrated.yaml"
+    return Path(cfg.calibrate.preset or default)
 
 
 def storage_url(cfg: CalibrateAppConfig) -> str:
@@ -102,21 +99,12 @@ def with_params(behavior: BehaviorConfig, label: str, params: dict[str, float]) 
 def scene_scores(cfg: CalibrateAppConfig, behavior: BehaviorConfig) -> dict[str, Any]:
     """Simulate the calibration scenes under ``behavior`` and score them with CMetric."""
     from bgap.cmetric.score import label_auc, score_trajectories
-    from bgap.simulate import simulate
 
     c = cfg.calibrate
     env = replace(env_preset(c.density), duration=c.duration)
-    sim = SimulateConfig(
-        env=env,
-        behavior=behavior,
-        reward=cfg.reward,
-        mix=c.scene_mix,
-        radius=cfg.radius,
-        seed=c.scene_seed,
-        backend=cfg.backend,
-        episodes=c.episodes,
-    )
-    table = simulate(sim, progress=False)
+    scene = replace(cfg, env=env, behavior=behavior, mix=c.scene_mix)
+    seeds = range(c.scene_seed, c.scene_seed + c.episodes)
+    table = rollout(env_config(scene), "idle", seeds, cfg.backend, record=True).trajectories
     result = score_trajectories(table, cfg.cmetric, fps=env.simulation_frequency)
     vehicles = result.vehicles
     final = table[table.frame == table.groupby("episode").frame.transform("max")]
@@ -224,10 +212,10 @@ def write_outputs(
     import matplotlib.pyplot as plt
 
     c = cfg.calibrate
-    out = Path(c.out)
+    out = report_dir(cfg)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for key in PAPER_TABLE[CONSERVATIVE]:
+    for key in TABLE_KEYS:
         row = {"parameter": key}
         for label in (CONSERVATIVE, AGGRESSIVE):
             row[f"paper_{label}"] = PAPER_TABLE[label][key]
@@ -299,32 +287,30 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
             study = calibrate_class(replace(cfg, behavior=behavior), label, progress, storage)
             studies[label].append(study)
             behavior = with_params(behavior, label, dict(study.best_params))
-    behavior = replace(behavior, name="calibrated")
+    behavior = replace(behavior, name=preset_file(cfg).stem)
     targets = ", ".join(f"{k} {v}" for k, v in asdict(cfg.calibrate.targets).items())
     write_preset(
         behavior,
         "behavior",
-        cfg.calibrate.preset,
-        f"Written by python -m bgap.calibrate (targets: {targets}); see results/calibration/.",
+        preset_file(cfg),
+        f"Written by python -m bgap.calibrate (targets: {targets}); report: {report_dir(cfg)}",
     )
     return write_outputs(cfg, studies, behavior)
 
 
-register_configs()
-
-
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="calibrate")
+@app("calibrate")
 def main(dcfg: DictConfig) -> None:
     from bgap.runs import save_run_metadata
 
     cfg: CalibrateAppConfig = load(dcfg)
-    save_run_metadata(cfg.calibrate.out, dcfg)
+    save_run_metadata(report_dir(cfg), dcfg)
     try:
         summary = calibrate(cfg)
     except ConfigError as err:
         raise SystemExit(f"bgap: configuration error: {err}") from None
-    print(json.dumps({k: v for k, v in summary.items()}, indent=2))
-    print(f"preset: {cfg.calibrate.preset} (use behavior=calibrated); report: {cfg.calibrate.out}")
+    print(json.dumps(summary, indent=2))
+    hint = selection_hint("behavior", preset_file(cfg))
+    print(f"preset: {preset_file(cfg)} (use: {hint}); report: {report_dir(cfg)}")
 
 
 if __name__ == "__main__":

@@ -12,33 +12,23 @@ that end in a crash, 95% Wilson interval), mean speed and mean lane changes (95%
 from __future__ import annotations
 
 import json
-import math
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
-import hydra
 import numpy as np
 import pandas as pd
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from bgap.config import (
-    BASELINES,
-    CONF_DIR,
-    ExperimentConfig,
-    env_config,
-    env_preset,
-    load,
-    register_configs,
-)
-
-IDLE, LANE_LEFT = 1, 0
-Policy = Callable[[np.ndarray, list[np.random.Generator]], np.ndarray]
-"""A batch of observations (B, V, 5) and one random stream per episode -> B actions."""
+from bgap.config import ExperimentConfig, app, load
+from bgap.rollout import as_policy, rollout
+from bgap.scenario import env_config, env_preset
+from bgap.stats import t_interval, wilson_interval
+from bgap.vocab import BASELINES
 
 
 @dataclass(frozen=True)
@@ -65,116 +55,15 @@ def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
     return env_config(replace(cfg, env=env, mix=cell.mix, radius=cell.radius))
 
 
-def load_policy(spec: str) -> tuple[Policy, int | None]:
-    """A scripted baseline name or a model path; returns the policy and the number of
-    observation rows it expects (None: any)."""
-    if spec == "idle":
-        return (lambda obs, rngs: np.full(len(obs), IDLE)), None
-    if spec == "left":
-        return (lambda obs, rngs: np.full(len(obs), LANE_LEFT)), None
-    if spec == "random":
-        return (lambda obs, rngs: np.array([r.integers(5) for r in rngs])), None
-    from bgap.agents.dqn import DQN
-
-    model = DQN.load(model_path(spec), device="cpu")
-    return greedy(model), model.observation_space.shape[0]
-
-
-def greedy(model) -> Policy:
-    """A trained model as a policy: its greedy (deterministic) actions, one batched call."""
-    return lambda obs, rngs: np.asarray(model.predict(obs, deterministic=True)[0]).reshape(-1)
-
-
-def model_path(spec: str | Path) -> Path:
-    path = Path(spec)
-    if path.is_dir():
-        path = path / "model.zip"
-    if not path.exists():
-        raise FileNotFoundError(f"no model at {path}; train it with python -m bgap.train")
-    return path
-
-
-def run_episode(env, policy: Policy, seed: int) -> dict[str, Any]:
-    """One seeded episode on a highway-env environment; the policy's own randomness is
-    seeded by the episode too."""
-    rngs = [np.random.default_rng(seed)]
-    obs, _ = env.reset(seed=seed)
-    speeds, lane_changes, total, done, info = [], 0, 0.0, False, {}
-    while not done:
-        action = int(policy(obs[None], rngs)[0])
-        obs, reward, terminated, truncated, info = env.step(action)
-        speeds.append(info["ego_speed"])
-        lane_changes += int(info["lane_change"])
-        total += float(reward)
-        done = terminated or truncated
-    return {
-        "crashed": bool(info["crashed"]),
-        "avg_speed": float(np.mean(speeds)),
-        "lane_changes": lane_changes,
-        "steps": len(speeds),
-        "return": total,
-    }
-
-
-def run_episodes_vector(env_cfg: dict, policy: Policy, seeds: list[int]) -> list[dict[str, Any]]:
-    """The episodes ``seeds`` played side by side on the vectorised backend (one env each;
-    an env that finishes early idles in its next episode, which is not counted)."""
-    from bgap.sim.vector import VectorHighway
-
-    venv = VectorHighway(env_cfg, len(seeds))
-    obs, _ = venv.reset(seed=list(seeds))
-    rngs = [np.random.default_rng(seed) for seed in seeds]
-    b = len(seeds)
-    live = np.ones(b, dtype=bool)
-    speed_sum, steps, lanes = np.zeros(b), np.zeros(b, dtype=int), np.zeros(b, dtype=int)
-    total, crashed = np.zeros(b), np.zeros(b, dtype=bool)
-    while live.any():
-        actions = np.full(b, IDLE)
-        idx = np.flatnonzero(live)
-        actions[idx] = policy(obs[idx], [rngs[i] for i in idx])
-        obs, reward, terminated, truncated, info = venv.step(actions)
-        speed_sum[idx] += info["ego_speed"][idx]
-        steps[idx] += 1
-        lanes[idx] += info["lane_change"][idx]
-        total[idx] += reward[idx]
-        crashed[idx] = info["crashed"][idx]
-        live &= ~(terminated | truncated)
-    return [
-        {
-            "crashed": bool(crashed[i]),
-            "avg_speed": float(speed_sum[i] / steps[i]),
-            "lane_changes": int(lanes[i]),
-            "steps": int(steps[i]),
-            "return": float(total[i]),
-        }
-        for i in range(b)
-    ]
-
-
-def play(env_cfg: dict, policy: Policy, seeds: list[int], backend: str) -> list[dict[str, Any]]:
-    """Seeded episodes of ``policy`` on either backend, one result dict per seed."""
-    if backend == "vector":
-        return run_episodes_vector(env_cfg, policy, seeds)
-    import gymnasium as gym
-
-    import bgap.envs
-
-    env = gym.make(bgap.envs.ENV_ID, config=env_cfg)
-    try:
-        return [run_episode(env, policy, seed) for seed in seeds]
-    finally:
-        env.close()
-
-
 def _evaluate_chunk(
-    name: str, spec: str, cell: Cell, env_cfg: dict, seeds: list[int], backend: str = "highway"
+    name: str, spec: Any, cell: Cell, env_cfg: dict, seeds: list[int], backend: str = "highway"
 ) -> list:
-    policy, rows = load_policy(spec)
+    policy, rows = as_policy(spec)
     if rows is not None and rows != env_cfg["observation"]["vehicles_count"]:
         return []  # a model sees a fixed number of vehicles: only its own density
     key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}
-    results = play(env_cfg, policy, seeds, backend)
-    return [{**key, "seed": seed, **r} for seed, r in zip(seeds, results, strict=True)]
+    episodes = rollout(env_cfg, policy, seeds, backend).episodes
+    return [{**key, **row} for row in episodes.to_dict(orient="records")]
 
 
 def evaluate(
@@ -187,7 +76,10 @@ def evaluate(
 ) -> pd.DataFrame:
     """Play ``episodes`` seeded episodes of every policy on every cell; one row per episode.
 
-    ``policies`` maps a display name to a baseline (idle, random, left) or a model path.
+    ``policies`` maps a display name to any policy :func:`bgap.rollout.as_policy` accepts: a
+    baseline (idle, random, left), a model path, a loaded SB3 model or a callable from
+    observations to actions (your own agent; it must be picklable when ``workers`` > 1 on
+    highway-env).
     """
     cells = list(cells or grid_cells(cfg))
     episodes = episodes or cfg.profile.eval_episodes
@@ -215,26 +107,6 @@ def evaluate(
             bar.update(chunk)
     bar.close()
     return pd.DataFrame(rows)
-
-
-def wilson_interval(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """95% Wilson interval of a rate of k events in n trials."""
-    if n == 0:
-        return math.nan, math.nan
-    p = k / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return centre - half, centre + half
-
-
-def t_interval(x: np.ndarray) -> tuple[float, float]:
-    """95% Student t interval of the mean of x (NaN below two values)."""
-    from scipy.stats import t
-
-    if len(x) < 2:
-        return math.nan, math.nan
-    half = t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x))
-    return x.mean() - half, x.mean() + half
 
 
 def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -342,10 +214,7 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     return specs
 
 
-register_configs()
-
-
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="evaluate")
+@app("evaluate")
 def main(dcfg: DictConfig) -> None:
     from bgap.runs import save_run_metadata
 

@@ -24,11 +24,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.evaluate import t_interval, wilson_interval
+from bgap.scenario import env_preset
+from bgap.stats import mean_interval, wilson_interval
 
 MODEL = re.compile(r"^(?P<density>[a-z]+)-(?P<family>behavior_rich|default)-s(?P<seed>\d+)$")
 METRICS = {"collision_pct": "collision %", "avg_speed": "speed m/s", "lane_changes": "lane changes"}
-N_OF = {"sparse": 5, "dense": 40}
+
+
+def n_of(density: str) -> int | str:
+    """The paper's name of a density: its number of background vehicles n."""
+    try:
+        return env_preset(density).vehicles_count
+    except ValueError:
+        return density
+
+
 # The paper's bars (FACTS.md): crashes per 100 episodes, at 0% / 50% / 100% aggressive.
 PAPER_CRASHES = {
     ("dense", "default"): {0.0: 65, 0.5: 70, 1.0: 30},
@@ -52,14 +62,6 @@ def load_episodes(results_dir: str | Path) -> pd.DataFrame:
     return df
 
 
-def _t(x: np.ndarray) -> tuple[float, float]:
-    """bgap.evaluate's t interval; one value (one seed, one episode) has no spread to show."""
-    x = np.asarray(x, dtype=float)
-    if len(x) < 2:
-        return float(np.mean(x)), float(np.mean(x))
-    return t_interval(x)
-
-
 def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
     """Per family and cell: mean over training seeds of each metric and its 95% interval
     (across seeds with >= 2 seeds; across episodes otherwise)."""
@@ -72,12 +74,12 @@ def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
         for m in METRICS:
             row[m] = g[m].mean()
             if len(g) > 1:
-                row[f"{m}_lo"], row[f"{m}_hi"] = _t(g[m].to_numpy())
+                row[f"{m}_lo"], row[f"{m}_hi"] = mean_interval(g[m].to_numpy())
             elif m == "collision_pct":  # one seed: Wilson interval of the crash count
                 lo, hi = wilson_interval(int(episodes.crashed.sum()), len(episodes))
                 row[f"{m}_lo"], row[f"{m}_hi"] = 100 * lo, 100 * hi
             else:
-                row[f"{m}_lo"], row[f"{m}_hi"] = _t(episodes[m].to_numpy())
+                row[f"{m}_lo"], row[f"{m}_hi"] = mean_interval(episodes[m].to_numpy())
         for m in METRICS:  # every metric is non-negative; a rate is at most 100
             row[f"{m}_lo"] = max(row[f"{m}_lo"], 0.0)
         row["collision_pct_hi"] = min(row["collision_pct_hi"], 100.0)
@@ -120,7 +122,7 @@ def fig4(stats: pd.DataFrame, per_seed: pd.DataFrame, path: Path) -> None:
                     & (per_seed.radius == radius)
                 ]
                 ax.plot(p.mix, p[metric], ".", color=color, alpha=0.35)
-            ax.set_title(f"n = {N_OF.get(density, density)}: {label}", fontsize=10)
+            ax.set_title(f"n = {n_of(density)}: {label}", fontsize=10)
             ax.set_xlabel("aggressive fraction")
             if r == 0 and c == 0:
                 ax.legend(fontsize=8)
@@ -149,7 +151,7 @@ def fig6(stats: pd.DataFrame, path: Path) -> None:
             ax.errorbar(
                 s.mix, s.collision_pct, yerr=err, fmt="-o", capsize=3, label=f"{radius:g} m"
             )
-        ax.set_title(f"n = {N_OF.get(density, density)}: behaviour-rich collisions", fontsize=10)
+        ax.set_title(f"n = {n_of(density)}: behaviour-rich collisions", fontsize=10)
         ax.set_xlabel("aggressive fraction")
         ax.set_ylabel("collision %")
         ax.legend(title="perception radius", fontsize=8)
@@ -174,9 +176,9 @@ def _paired(df: pd.DataFrame, a: dict, b: dict, metric: str = "collision_pct") -
         return {"difference": np.nan, "lo": np.nan, "hi": np.nan, "n": 0}
     if same_train and d.index.get_level_values("train_seed").nunique() > 1:
         per_seed = d.groupby(level="train_seed").mean()
-        lo, hi = _t(per_seed.to_numpy())
+        lo, hi = mean_interval(per_seed.to_numpy())
     else:
-        lo, hi = _t(d.to_numpy())
+        lo, hi = mean_interval(d.to_numpy())
     return {"difference": float(d.mean()), "lo": lo, "hi": hi, "n": int(len(d))}
 
 
@@ -202,7 +204,7 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
         )
         rows.append(
             {
-                "claim": f"n={N_OF.get(density)}: behaviour-rich collides less than "
+                "claim": f"n={n_of(density)}: behaviour-rich collides less than "
                 "default (all mixes, paired)",
                 **r,
                 "verdict": _verdict(r["lo"], r["hi"], True),
@@ -218,7 +220,7 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
             lo, hi = diff - 1.96 * se, diff + 1.96 * se
             rows.append(
                 {
-                    "claim": f"n={N_OF.get(density)}: behaviour-rich collides less in "
+                    "claim": f"n={n_of(density)}: behaviour-rich collides less in "
                     "homogeneous (0%, 100%) than mixed traffic",
                     "difference": diff,
                     "lo": lo,
@@ -235,8 +237,7 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
         )
         rows.append(
             {
-                "claim": f"n={N_OF.get(density)}: default collides less at 100% than at "
-                "50% aggressive",
+                "claim": f"n={n_of(density)}: default collides less at 100% than at 50% aggressive",
                 **r,
                 "verdict": _verdict(r["lo"], r["hi"], True),
             }
@@ -251,7 +252,7 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
             )
             rows.append(
                 {
-                    "claim": f"n={N_OF.get(density)}: behaviour-rich collides more with a "
+                    "claim": f"n={n_of(density)}: behaviour-rich collides more with a "
                     f"{radii[0]:g} m than a {radii[-1]:g} m perception radius",
                     **r,
                     "verdict": _verdict(r["lo"], r["hi"], False),
@@ -301,7 +302,7 @@ def paper_comparison(stats: pd.DataFrame) -> str:
                     f"{s.iloc[0].collision_pct_hi:.1f}]"
                 )
             )
-            lines.append(f"| {N_OF[density]} | {family} | {mix:.0%} | {value} | {ours} |")
+            lines.append(f"| {n_of(density)} | {family} | {mix:.0%} | {value} | {ours} |")
     return "\n".join(lines) + "\n"
 
 

@@ -1,7 +1,8 @@
-"""Trajectory recording: every simulation frame of every vehicle, as a tidy table.
+"""Trajectory tables: every simulation frame of every vehicle, one row per vehicle and frame.
 
-The schema (one row per vehicle and frame) is what CMetric reads and what both simulator
-backends write:
+Both simulators report their frames in one array layout (:mod:`bgap.simulators`, recorded
+by :func:`bgap.rollout.rollout` with ``record=True``); this module turns them into the table
+CMetric reads. The schema:
 
 ==============  ========  ====================================================
 column          type      meaning
@@ -22,8 +23,6 @@ crashed         bool
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 
@@ -43,70 +42,6 @@ COLUMNS = [
     "crashed",
 ]
 REQUIRED = ["episode", "frame", "time", "vehicle_id", "label", "x", "y", "vx", "vy"]
-
-
-class TrajectoryRecorder:
-    """Listens to a :class:`~bgap.envs.highway.BehaviorHighwayEnv` and keeps every frame.
-
-    Attach before ``reset`` so frame 0 is captured::
-
-        rec = TrajectoryRecorder(env)
-        env.reset(seed=0); ...
-        rec.to_frame().to_parquet("trajectories.parquet")
-    """
-
-    def __init__(self, env) -> None:
-        self.env = env.unwrapped
-        self.env.frame_listeners.append(self)
-        self._rows: list[np.ndarray] = []
-        self._labels: list[list[str]] = []
-        self._last_episode = None
-        self._episodes_seen = 0
-
-    def __call__(self, env) -> None:
-        # Episodes are numbered per recording, not by the env's lifetime counter.
-        if env.episode != self._last_episode:
-            self._last_episode = env.episode
-            self._episodes_seen += 1
-        episode = self._episodes_seen - 1
-        vehicles = env.road.vehicles
-        dt = 1.0 / env.config["simulation_frequency"]
-        block = np.empty((len(vehicles), 11))
-        for i, v in enumerate(vehicles):
-            vel = v.velocity
-            block[i] = (
-                episode,
-                env.frame,
-                env.frame * dt,
-                v.bgap_id,
-                v.position[0],
-                v.position[1],
-                vel[0],
-                vel[1],
-                v.speed,
-                v.lane_index[2],
-                v.crashed,
-            )
-        self._rows.append(block)
-        self._labels.append([v.bgap_label for v in vehicles])
-
-    def detach(self) -> None:
-        if self in self.env.frame_listeners:
-            self.env.frame_listeners.remove(self)
-
-    def to_frame(self) -> pd.DataFrame:
-        """The recorded trajectories in the documented schema."""
-        if not self._rows:
-            return pd.DataFrame({c: [] for c in COLUMNS})
-        data = np.concatenate(self._rows)
-        labels = np.concatenate([np.asarray(lab, dtype=object) for lab in self._labels])
-        return _table(data[:, 0], data[:, 1], data[:, 2], data[:, 3], labels, data[:, 4:])
-
-    def save(self, path: str | Path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        self.to_frame().to_parquet(path, index=False)
-        return path
 
 
 def table_from_states(

@@ -14,13 +14,13 @@ import time
 from contextlib import contextmanager
 from pathlib import Path
 
-import hydra
 from omegaconf import DictConfig
 
-from bgap.config import CONF_DIR, POLICIES, ExperimentConfig, load, register_configs
+from bgap.config import ExperimentConfig, app, load
 from bgap.evaluate import evaluate, format_table, plot_comparison, summarize, write_results
 from bgap.runs import save_run_metadata
 from bgap.train import run_dir_for, train, training_config
+from bgap.vocab import POLICIES
 
 
 def results_dir(cfg: ExperimentConfig) -> Path:
@@ -73,10 +73,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     return out
 
 
-register_configs()
-
-
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="run")
+@app("run")
 def main(dcfg: DictConfig) -> None:
     run(load(dcfg), dcfg)
 

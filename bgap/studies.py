@@ -13,7 +13,7 @@ from pathlib import Path
 
 import optuna
 
-from bgap.config import ConfigError
+from bgap.errors import ConfigError
 
 # Seconds between a running trial's heartbeats, and without one before it counts as dead.
 HEARTBEAT = (30, 90)

@@ -10,9 +10,10 @@ does not work with Optuna 5), trains a policy on the profile's budget (its own r
 with the resolved config and TensorBoard logs), evaluates it greedily on fixed seeds and
 reports collision % (minimised) and average speed (maximised). ``mode=single`` minimises
 ``collision % - speed_weight * speed`` and prunes trials whose intermediate evaluations are
-poor. The search space is ``sweeps/<sweep>.yaml``. The chosen parameters are written as a
-preset (``conf/reward/tuned.yaml`` or ``conf/agent/tuned.yaml``), the Pareto front to
-``<out>/pareto.csv`` and ``pareto.png``.
+poor. The search space is the packaged ``bgap/sweeps/<sweep>.yaml``. The chosen parameters
+are written as a preset (default ``<root>/presets/<group>/user_tuned.yaml``, then
+``reward=user_tuned`` or ``agent=user_tuned``), the Pareto front to ``<out>/pareto.csv`` and
+``pareto.png``.
 """
 
 from __future__ import annotations
@@ -23,27 +24,18 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-import hydra
 import optuna
 import pandas as pd
 import yaml
 from omegaconf import DictConfig
 from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.config import (
-    CONF_DIR,
-    ConfigError,
-    ExperimentConfig,
-    SweepConfig,
-    compose,
-    load,
-    register_configs,
-    validate,
-    write_preset,
-)
+from bgap.config import ExperimentConfig, SweepConfig, app, compose, load, validate
+from bgap.errors import ConfigError
+from bgap.presets import SWEEPS_DIR, selection_hint, write_preset
+from bgap.rollout import greedy, rollout
+from bgap.scenario import env_config
 from bgap.studies import open_storage, sqlite_url
-
-SWEEPS_DIR = Path(CONF_DIR).parent / "sweeps"
 
 
 def load_space(name: str) -> dict[str, dict[str, Any]]:
@@ -103,11 +95,8 @@ class PruneCallback(BaseCallback):
 
 def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
     """Collision % and average speed of the greedy model on fixed seeds."""
-    from bgap.config import env_config
-    from bgap.evaluate import greedy, play
-
-    seeds = [cfg.eval_seed + k for k in range(episodes)]
-    rows = pd.DataFrame(play(env_config(cfg), greedy(model), seeds, cfg.backend))
+    seeds = range(cfg.eval_seed, cfg.eval_seed + episodes)
+    rows = rollout(env_config(cfg), greedy(model), seeds, cfg.backend).episodes
     return 100.0 * float(rows.crashed.mean()), float(rows.avg_speed.mean())
 
 
@@ -256,7 +245,8 @@ def write_outputs(study: optuna.Study, cfg: SweepConfig) -> dict[str, Path]:
 
 
 def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> Path:
-    """The chosen trial's group (reward or agent) as a ``tuned`` preset in conf/."""
+    """The chosen trial's group (reward or agent) as a preset (``sweep.preset``, default
+    ``<root>/presets/<group>/user_tuned.yaml``)."""
     groups = {key.split(".")[0] for key in trial.params}
     if len(groups) != 1:
         raise ConfigError(f"a sweep must stay inside one config group, got {sorted(groups)}")
@@ -267,14 +257,11 @@ def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> Path:
         f"(trial {trial.number}: {json.dumps(trial.user_attrs.get('collision_pct'))}% "
         f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)"
     )
-    path = Path(cfg.preset) if cfg.preset else Path(CONF_DIR) / group / "tuned.yaml"
-    return write_preset(replace(getattr(tcfg, group), name="tuned"), group, path, note)
+    path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
+    return write_preset(replace(getattr(tcfg, group), name=path.stem), group, path, note)
 
 
-register_configs()
-
-
-@hydra.main(version_base="1.3", config_path=CONF_DIR, config_name="sweep")
+@app("sweep")
 def main(dcfg: DictConfig) -> None:
     cfg: SweepConfig = load(dcfg)
     try:
@@ -296,6 +283,9 @@ def main(dcfg: DictConfig) -> None:
     )
     for name, path in paths.items():
         print(f"{name}: {path}")
+    if "preset" in paths:
+        group = paths["preset"].parent.name
+        print(f"use the preset with: {selection_hint(group, paths['preset'])}")
 
 
 if __name__ == "__main__":

@@ -9,15 +9,10 @@ from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ConfigKeyError
 
 from bgap import calibrate as cal
-from bgap.config import (
-    BehaviorConfig,
-    CalibrateAppConfig,
-    ConfigError,
-    DriverParams,
-    compose,
-    load_preset,
-    validate,
-)
+from bgap.behaviors import BehaviorConfig, DriverParams
+from bgap.config import CalibrateAppConfig, compose, validate
+from bgap.errors import ConfigError
+from bgap.presets import load_preset, preset_path
 
 PAPER = cal.PAPER_TABLE
 
@@ -107,12 +102,11 @@ def test_the_repository_preset_loads_as_behavior_calibrated():
     import json
     from pathlib import Path
 
-    preset = Path(cal.CONF_DIR) / "behavior" / "calibrated.yaml"
+    preset = preset_path("behavior", "calibrated")
     if not preset.exists():
         pytest.skip("no calibrated preset yet (dvc repro calibrate)")
-    reported = json.loads(
-        (Path(cal.CONF_DIR).parent / "results/calibration/scores.json").read_text()
-    )
+    repository = Path(__file__).resolve().parents[1]
+    reported = json.loads((repository / "results/calibration/scores.json").read_text())
     cfg = validate(compose("calibrate", ["behavior=calibrated"]))
     stats = cal.scene_scores(cfg, cfg.behavior)  # the calibration's own scenes: exact
     for label in reported["targets"]:

@@ -12,9 +12,9 @@ import pytest
 
 from bgap.cmetric import TrajectoryError, load_trajectories, score_trajectories
 from bgap.cmetric.centrality import Scene, centralities
+from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.poly import fit_polynomials
 from bgap.cmetric.reference import centralities_networkx
-from bgap.config import CMetricConfig
 
 
 def table(rows) -> pd.DataFrame:
@@ -229,22 +229,41 @@ def test_command_writes_scores_and_plot(tmp_path):
 
 
 # ----------------------------------------------------------------- labels of the simulator
-# Measured with these seeds (10 episodes, paper preset, mix 0.5): dense 0.908, sparse 0.413.
-# In sparse traffic aggressive drivers leave the others behind within seconds and their
-# graphs go quiet; see the README's CMetric section.
-AUC_FLOOR = {"dense": 0.90, "sparse": 0.40}
-
-
-@pytest.mark.parametrize("density", ["sparse", "dense"])
-def test_aggressive_labels_score_higher_on_simulated_traffic(density):
+def _simulated_auc(density: str, episodes: int):
     from bgap.cmetric.score import label_auc
     from bgap.simulate import simulate
     from tests.conftest import make_cfg
 
-    cfg = make_cfg(f"env={density}", "mix=0.5", "behavior=paper", "seed=500")
-    vehicles = score_trajectories(simulate(cfg, episodes=10, progress=False)).vehicles
-    auc = label_auc(vehicles)
-    assert auc >= AUC_FLOOR[density], f"{density} AUC {auc:.3f}"
-    if density == "dense":
-        means = vehicles.groupby("label").aggressiveness.mean()
-        assert means["aggressive"] > 2 * means["conservative"]
+    overrides = [f"env={density}", "mix=0.5", "behavior=paper", "seed=500", "backend=vector"]
+    vehicles = score_trajectories(simulate(make_cfg(*overrides), episodes, False)).vehicles
+    return label_auc(vehicles), vehicles
+
+
+def test_aggressive_labels_score_higher_in_dense_traffic():
+    # Measured with these seeds (30 episodes, 1,230 vehicles, vector backend): AUC 0.898;
+    # the floor is about two standard errors below it.
+    auc, vehicles = _simulated_auc("dense", 30)
+    assert auc >= 0.87, f"dense AUC {auc:.3f}"
+    means = vehicles.groupby("label").aggressiveness.mean()
+    assert means["aggressive"] > 2 * means["conservative"]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="known failure (issue 16): in sparse traffic aggressive drivers leave the others "
+    "within seconds and their empty graphs score as calm; measured AUC 0.50 (30 episodes)",
+)
+def test_aggressive_labels_score_higher_in_sparse_traffic():
+    auc, _ = _simulated_auc("sparse", 30)
+    assert auc >= 0.9, f"sparse AUC {auc:.3f}"
+
+
+def test_cmetric_stands_alone_without_simulator_learner_or_hydra():
+    """Scoring any trajectory file needs neither a simulator, a learner nor Hydra."""
+    code = (
+        "import sys, bgap.cmetric, bgap.cmetric.params;"
+        "heavy = [m for m in ('hydra', 'highway_env', 'torch', 'stable_baselines3', 'gymnasium')"
+        " if m in sys.modules]; print(heavy); sys.exit(bool(heavy))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import pytest
-from hydra.errors import ConfigCompositionException
+from hydra.errors import ConfigCompositionException, MissingConfigException
 from omegaconf.errors import ValidationError
 
-from bgap.config import ConfigError, compose, env_config, validate
+from bgap.config import compose, validate
+from bgap.errors import ConfigError
+from bgap.scenario import env_config
 from tests.conftest import make_cfg
 
 
@@ -32,11 +34,15 @@ def test_groups_compose():
         ("radius=0", "radius"),
         ("behavior.aggressive.politeness=2", "politeness"),
         ("episodes=0", "episodes"),
+        ("seed=-3", "seed=-3 is invalid"),
+        ("policy=nowhere/model.zip", "policy='nowhere/model.zip' is invalid"),
+        ("render=true", "render=True is invalid.*backend=highway"),
     ],
 )
 def test_out_of_range_values_name_the_key(override, match):
+    extra = ["backend=vector"] if override.startswith("render") else []
     with pytest.raises(ConfigError, match=match):
-        validate(compose("simulate", [override]))
+        validate(compose("simulate", [override, *extra]))
 
 
 @pytest.mark.parametrize("override", ["foo=1", "env.lanes=3", "reward.crash=-1"])
@@ -51,5 +57,5 @@ def test_wrong_types_fail_at_compose():
 
 
 def test_unknown_group_option_lists_the_choices():
-    with pytest.raises(Exception, match="dense"):
+    with pytest.raises(MissingConfigException, match="dense"):
         compose("simulate", ["env=medium"])

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -25,11 +27,10 @@ def _run(args: list[str], cwd: Path) -> str:
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory) -> Path:
     repo = tmp_path_factory.mktemp("study")
-    for name in ("bgap", "conf"):
-        shutil.copytree(ROOT / name, repo / name, ignore=shutil.ignore_patterns("__pycache__"))
-    for name in ("dvc.yaml", "params.yaml"):
+    shutil.copytree(ROOT / "bgap", repo / "bgap", ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("dvc.yaml", "params.yaml", ".dvcignore"):
         shutil.copy(ROOT / name, repo / name)
-    (repo / "conf/behavior/calibrated.yaml").unlink(missing_ok=True)  # the stage makes it
+    (repo / "bgap/conf/behavior/calibrated.yaml").unlink(missing_ok=True)  # the stage makes it
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params.update(profile="tiny", seeds=[0], densities=["sparse"], grid="tiny", eval_episodes=4)
     params["calibrate"]["trials"] = 2
@@ -43,35 +44,53 @@ def pipeline(tmp_path_factory) -> Path:
     return repo
 
 
-def _png_size(path: Path) -> tuple[int, int]:
-    data = path.read_bytes()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
-    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+def _colour_pixels(path: Path, colour: str) -> int:
+    """Pixels of a PNG within a small distance of a matplotlib colour."""
+    import matplotlib.colors as mcolors
+    import matplotlib.image as mimage
+
+    image = mimage.imread(path)[..., :3]
+    return int((np.abs(image - np.array(mcolors.to_rgb(colour))).max(axis=-1) < 0.02).sum())
 
 
-def test_every_stage_writes_its_outputs(pipeline):
+def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
+    import json
+
+    from bgap.behaviors import BehaviorConfig
+    from bgap.presets import load_preset
+
     for name in (
-        "conf/behavior/calibrated.yaml",
-        "results/calibration/table.md",
-        "results/calibration/scores.json",
         "outputs/pipeline/runs/sparse-behavior_rich-s0/model.zip",
         "outputs/pipeline/runs/sparse-default-s0/model.zip",
-        "outputs/pipeline/evaluation/episodes.csv",
-        "results/README.md",
-        "results/table2.md",
-        "results/claims.csv",
-        "results/metrics.json",
         "results/parity/parity.csv",
         "dvc.lock",
     ):
         assert (pipeline / name).stat().st_size > 0, name
-    # Fig. 4: one row per density (sparse only here) and three metric panels of 4 x 3.3 in
-    width, height = _png_size(pipeline / "results/figures/fig4.png")
-    assert (width, height) == (12 * 120, int(3.3 * 120))
-    width, height = _png_size(pipeline / "results/figures/fig6.png")
-    assert (width, height) == (int(5.5 * 120), int(3.4 * 120))
-    assert "B-GAP (paper)" in (pipeline / "results/table2.md").read_text()
-    assert "| claim" in (pipeline / "results/README.md").read_text()
+    # calibrate: the preset it wrote is a valid behaviour preset, within the searched bounds
+    preset = load_preset(BehaviorConfig, pipeline / "bgap/conf/behavior/calibrated.yaml")
+    scores = json.loads((pipeline / "results/calibration/scores.json").read_text())
+    assert scores["trials"] == {"aggressive": 2 * 3, "conservative": 2 * 3}  # 2 x 3 rounds
+    assert 0.5 <= preset.aggressive.time_gap <= 2.5 and 20 <= preset.aggressive.v0 <= 45
+    # figures: every cell of cells.csv is the mean of its evaluation episodes
+    episodes = pd.read_csv(pipeline / "outputs/pipeline/evaluation/episodes.csv")
+    episodes["family"] = episodes.policy.str.extract(r"-(behavior_rich|default)-s\d+$")[0]
+    episodes["family"] = episodes.family.fillna(episodes.policy)
+    cells = pd.read_csv(pipeline / "results/cells.csv")
+    keys = ["family", "density", "mix", "radius"]
+    want = episodes.groupby(keys).crashed.mean().mul(100).rename("want").reset_index()
+    merged = cells.merge(want, on=keys, how="outer", indicator=True)
+    assert (merged["_merge"] == "both").all(), merged[merged["_merge"] != "both"]
+    np.testing.assert_allclose(merged.collision_pct, merged.want)
+    assert (merged.collision_pct_lo <= merged.collision_pct).all()
+    assert (merged.collision_pct <= merged.collision_pct_hi).all()
+    # Table II: our all-aggressive sparse rate is that cell's behaviour-rich rate
+    ours = cells[(cells.family == "behavior_rich") & (cells.mix == 1.0)].collision_pct.iloc[0]
+    assert f"bgap behaviour-rich DQN | {ours:.2f}" in (pipeline / "results/table2.md").read_text()
+    # Fig. 4 draws both families (green and grey); Fig. 6 one colour per radius
+    fig4 = pipeline / "results/figures/fig4.png"
+    assert _colour_pixels(fig4, "tab:green") > 50 and _colour_pixels(fig4, "tab:gray") > 50
+    fig6 = pipeline / "results/figures/fig6.png"
+    assert _colour_pixels(fig6, "C0") > 50 and _colour_pixels(fig6, "C1") > 50
 
 
 def test_a_second_repro_does_nothing_and_a_parameter_reruns_only_its_stages(pipeline):

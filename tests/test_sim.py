@@ -8,13 +8,12 @@ import pytest
 from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.behaviors import BehaviorVehicle
-from bgap.config import env_config
 from bgap.envs import make_env
+from bgap.scenario import env_config
 from bgap.sim import core
 from bgap.sim.vector import VectorHighway, scene_from_highway
+from bgap.vocab import IDLE
 from tests.conftest import make_cfg
-
-IDLE = 1
 
 
 def _twin(*overrides: str, seed: int = 0):
@@ -189,18 +188,42 @@ def test_simulate_vector_writes_the_recorder_schema():
     load_trajectories(vec)  # passes CMetric's input validation
 
 
-def test_sb3_dqn_trains_on_the_vector_backend():
+def test_sb3_adapter_hands_sb3_the_finished_episodes_last_observation():
+    """SB3's conventions on top of the vector env: same steps, ``terminal_observation`` is
+    the finished episode's last observation (not the next episode's first), time-outs are
+    marked as such, and DQN stores them as time-outs, not as terminal states."""
     from stable_baselines3.common.vec_env import VecMonitor
 
     from bgap.agents.dqn import DQN
     from bgap.sim.sb3 import SB3VecEnv
 
-    venv = VecMonitor(
-        SB3VecEnv(VectorHighway(env_config(make_cfg("env=sparse", "env.duration=10")), 4))
-    )
+    config = env_config(make_cfg("env=sparse", "env.duration=3"))
+    ref = VectorHighway(config, 2)
+    ref_obs, _ = ref.reset(seed=[4, 5])
+    adapter = SB3VecEnv(VectorHighway(config, 2))
+    adapter.seed(4)  # SB3: env k takes seed 4 + k
+    np.testing.assert_array_equal(adapter.reset(), ref_obs)
+    for step in range(3):
+        actions = np.array([IDLE, core.LANE_LEFT if step == 0 else IDLE])
+        obs, rewards, dones, infos = adapter.step(actions)
+        ref_obs, ref_rewards, term, trunc, ref_info = ref.step(actions)
+        np.testing.assert_array_equal(obs, ref_obs)
+        np.testing.assert_allclose(rewards, ref_rewards, rtol=1e-6)
+        np.testing.assert_array_equal(dones, term | trunc)
+    assert dones.all() and trunc.all()  # 3 s at 1 Hz: time-outs
+    for b in range(2):
+        np.testing.assert_array_equal(infos[b]["terminal_observation"], ref_info["final_obs"][b])
+        assert not np.array_equal(infos[b]["terminal_observation"], obs[b])
+        assert infos[b]["TimeLimit.truncated"]
+
+    venv = VecMonitor(SB3VecEnv(VectorHighway(config, 2)))
     venv.seed(0)
     model = DQN("MlpPolicy", venv, learning_starts=50, buffer_size=1000, seed=0, device="cpu")
-    model.learn(400)
-    assert model.num_timesteps >= 400
-    assert len(model.ep_info_buffer) >= 4 * 400 // 10 // 4  # episodes ended and were logged
-    assert model.replay_buffer.size() > 0
+    model.learn(60)
+    buffer = model.replay_buffer
+    ends = buffer.dones[: buffer.pos].astype(bool)
+    timeouts = buffer.timeouts[: buffer.pos].astype(bool)
+    lengths = np.array([e["l"] for e in model.ep_info_buffer])
+    assert ends.sum() == len(lengths) and not timeouts[~ends].any()
+    # Episodes cut by the 3 s limit are time-outs; those that crashed earlier are not.
+    assert timeouts[ends].sum() > 0 and (~timeouts[ends]).sum() >= (lengths < 3).sum()

@@ -16,7 +16,8 @@ from pathlib import Path
 import optuna
 import pytest
 
-from bgap.config import ConfigError, compose, validate
+from bgap.config import compose, validate
+from bgap.errors import ConfigError
 from bgap.sweep import load_space, sweep, write_outputs
 from bgap.train import train as _train  # noqa: F401  (imported early: workers fork cleanly)
 
@@ -37,7 +38,8 @@ def test_multi_objective_sweep_writes_pareto_front_and_preset(tmp_path):
     assert paths["plot"].read_bytes()[:4] == b"\x89PNG"
     front = paths["pareto"].read_text().splitlines()
     assert len(front) - 1 == len(study.best_trials) >= 1
-    from bgap.config import RewardConfig, load_preset
+    from bgap.presets import load_preset
+    from bgap.scenario import RewardConfig
     from bgap.sweep import chosen_trial
 
     reward = load_preset(RewardConfig, tmp_path / "tuned.yaml")  # must fit the reward schema

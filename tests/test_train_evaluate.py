@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import pickle
 from dataclasses import replace
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -11,7 +13,9 @@ import pytest
 from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.envs import make_env
-from bgap.evaluate import Cell, evaluate, load_policy, run_episode, summarize
+from bgap.evaluate import Cell, evaluate, summarize
+from bgap.rollout import baseline, rollout
+from bgap.scenario import env_config
 from tests.conftest import make_cfg
 
 
@@ -21,26 +25,42 @@ def exp_cfg(*overrides: str):
     return validate(compose("train", list(overrides)))
 
 
-def test_idle_policy_never_changes_lane():
-    env = make_env(make_cfg("env=sparse", "env.duration=15"))
-    idle, _ = load_policy("idle")
-    for seed in range(3):
-        assert run_episode(env, idle, seed)["lane_changes"] == 0
+def run_episode(env, policy, seed: int) -> dict:
+    """One seeded episode on a given (wrapped) highway-env environment, played by hand: the
+    reference the rollout's figures are checked against."""
+    rngs = [np.random.default_rng(seed)]
+    obs, _ = env.reset(seed=seed)
+    speeds, lane_changes, done, info = [], 0, False, {}
+    while not done:
+        obs, _, terminated, truncated, info = env.step(int(policy(obs[None], rngs)[0]))
+        speeds.append(info["ego_speed"])
+        lane_changes += int(info["lane_change"])
+        done = terminated or truncated
+    return {
+        "crashed": info["crashed"],
+        "avg_speed": np.mean(speeds),
+        "steps": len(speeds),
+        "lane_changes": lane_changes,
+    }
 
 
-def test_always_left_counts_each_real_lane_change_once():
+@pytest.mark.parametrize("backend", ["highway", "vector"])
+def test_idle_policy_never_changes_lane(backend):
+    cfg = make_cfg("env=sparse", "env.duration=15")
+    episodes = rollout(env_config(cfg), "idle", range(3), backend).episodes
+    assert (episodes.lane_changes == 0).all() and (episodes.steps > 0).all()
+
+
+@pytest.mark.parametrize("backend", ["highway", "vector"])
+def test_always_left_counts_each_real_lane_change_once(backend):
     # empty road: from lane L the ego can go left exactly L times, then the action is a no-op
-    env = make_env(make_cfg("env=sparse", "env.vehicles_count=0", "env.duration=12"))
-    left, _ = load_policy("left")
-    lanes = set()
-    for seed in range(8):
-        env.reset(seed=seed)
-        start_lane = env.unwrapped.vehicle.lane_index[2]
-        lanes.add(start_lane)
-        result = run_episode(env, left, seed)
-        assert result["lane_changes"] == start_lane
-        assert not result["crashed"]
-    assert len(lanes) > 1  # the check covered several starting lanes
+    cfg = make_cfg("env=sparse", "env.vehicles_count=0", "env.duration=12")
+    result = rollout(env_config(cfg), "left", range(8), backend, record=True)
+    table = result.trajectories
+    start_lanes = table[(table.frame == 0) & table.is_ego].sort_values("episode").lane
+    assert start_lanes.nunique() > 1  # the check covered several starting lanes
+    np.testing.assert_array_equal(result.episodes.lane_changes, start_lanes)
+    assert not result.episodes.crashed.any()
 
 
 class Roadblock(gym.Wrapper):
@@ -59,7 +79,7 @@ class Roadblock(gym.Wrapper):
 
 def test_forced_crash_counts_one_collision():
     env = Roadblock(make_env(make_cfg("env=sparse", "env.vehicles_count=0", "env.duration=20")))
-    idle, _ = load_policy("idle")
+    idle = baseline("idle")
     crash = run_episode(env, idle, 0)
     assert crash["crashed"] and crash["steps"] < 20
     clean = run_episode(
@@ -67,7 +87,7 @@ def test_forced_crash_counts_one_collision():
     )
     assert not clean["crashed"]
     rows = [
-        dict(policy="idle", mix=0.0, density="sparse", radius=180.0, seed=k, **r)
+        dict(policy="idle", mix=0.0, density="sparse", radius=180.0, seed=k, **r, **{"return": 0})
         for k, r in enumerate([crash, clean, clean, clean])
     ]
     summary = summarize(pd.DataFrame(rows)).iloc[0]
@@ -75,19 +95,63 @@ def test_forced_crash_counts_one_collision():
     assert summary.collision_lo < 25.0 < summary.collision_hi
 
 
-def test_policies_play_identical_seeded_episodes():
-    cfg = exp_cfg("env=sparse", "env.duration=5", "workers=1")
-    episodes = evaluate(
-        cfg,
-        {"idle": "idle", "idle2": "idle", "random": "random"},
-        [Cell(0.5, "sparse", 180.0)],
-        episodes=3,
-        progress=False,
-    )
-    a = episodes[episodes.policy == "idle"].drop(columns="policy").reset_index(drop=True)
-    b = episodes[episodes.policy == "idle2"].drop(columns="policy").reset_index(drop=True)
-    pd.testing.assert_frame_equal(a, b)
-    assert list(episodes[episodes.policy == "random"].seed) == list(a.seed)
+@pytest.mark.parametrize("backend", ["highway", "vector"])
+def test_rollout_figures_match_an_episode_played_by_hand(backend):
+    """The rollout's per-episode figures against a plain loop over one highway-env episode
+    (on the vector backend, against its own single-env loop), random ego."""
+    cfg = make_cfg("env=sparse", "env.duration=12", "mix=0.6")
+    seeds = [5, 6, 7]
+    got = rollout(env_config(cfg), "random", seeds, backend).episodes
+    for seed, row in zip(seeds, got.itertuples(), strict=True):
+        if backend == "highway":
+            want = run_episode(make_env(cfg), baseline("random"), seed)
+        else:
+            want = rollout(env_config(cfg), "random", [seed], backend).episodes.iloc[0]
+        assert row.crashed == want["crashed"] and row.steps == want["steps"]
+        assert row.lane_changes == want["lane_changes"]
+        assert row.avg_speed == pytest.approx(want["avg_speed"], rel=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["highway", "vector"])
+def test_policies_meet_the_same_traffic_on_the_same_seeds(backend):
+    """Episode k of every policy starts from the same scene, and an episode's result does
+    not depend on the episodes played beside it (batch of 3 vs alone)."""
+    cfg = make_cfg("env=sparse", "env.duration=5", "mix=0.6")
+    seeds = [11, 12, 13]
+    first = {}
+    for policy in ("idle", "random", "left"):
+        table = rollout(env_config(cfg), policy, seeds, backend, record=True).trajectories
+        first[policy] = table[table.frame == 0].reset_index(drop=True)
+    pd.testing.assert_frame_equal(first["idle"], first["random"])
+    pd.testing.assert_frame_equal(first["idle"], first["left"])
+    scenes = first["idle"].groupby("episode").x.sum()
+    assert scenes.nunique() == len(seeds)  # different seeds, different scenes
+    batch = rollout(env_config(cfg), "random", seeds, backend).episodes
+    alone = rollout(env_config(cfg), "random", seeds[1:2], backend).episodes
+    pd.testing.assert_frame_equal(batch.iloc[1:2].reset_index(drop=True), alone)
+
+
+def test_any_sb3_model_or_callable_is_a_policy(tmp_path):
+    """A user's own agent on the grid: a plain callable, and a PPO model saved by SB3."""
+    from stable_baselines3 import PPO
+
+    from bgap.envs import make_env as make
+
+    cfg = exp_cfg("env=sparse", "env.duration=5", "workers=1", "backend=vector")
+    ppo = PPO("MlpPolicy", make(cfg), n_steps=16, batch_size=16, seed=0)
+    ppo.save(tmp_path / "ppo.zip")
+    policies = {
+        "always_right": lambda obs: np.full(len(obs), 2),
+        "ppo": str(tmp_path / "ppo.zip"),
+        "ppo_object": ppo,
+    }
+    episodes = evaluate(cfg, policies, [Cell(0.5, "sparse", 180.0)], episodes=3, progress=False)
+    assert set(episodes.policy) == set(policies)
+    right = episodes[episodes.policy == "always_right"]
+    assert (right.lane_changes <= 3).all() and (right.lane_changes > 0).any()
+    a = episodes[episodes.policy == "ppo"].drop(columns="policy").reset_index(drop=True)
+    b = episodes[episodes.policy == "ppo_object"].drop(columns="policy").reset_index(drop=True)
+    pd.testing.assert_frame_equal(a, b)  # loaded from the file as the same algorithm
 
 
 def test_paper_grid_has_the_papers_cells():
@@ -111,27 +175,28 @@ def _short(tmp_path, *extra):
     )
 
 
-@pytest.mark.parametrize("backend", ["vector", "highway"])
-def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch, backend):
-    import json
+def _interrupted_then_resumed(cfg, monkeypatch, at: int):
+    """Train ``cfg`` with a Ctrl-C at step ``at``, then resume it; returns the checkpoint
+    state at the interruption and the (total steps, steps asked) of the resumed learn()."""
+    import pickle
 
     from bgap import train as train_mod
+    from bgap.agents.monitor import SB3Monitor
 
-    cfg = replace(_short(tmp_path, f"backend={backend}"), run_dir=str(tmp_path / "run"))
-    original = train_mod.Progress._on_step
+    original = SB3Monitor._on_step
 
-    def interrupt(self):
-        if self.num_timesteps >= 130:
-            raise KeyboardInterrupt
+    def ctrl_c(self):
+        if self.num_timesteps >= at:
+            self._request_stop(2, None)  # what the SIGINT handler does
         return original(self)
 
-    monkeypatch.setattr(train_mod.Progress, "_on_step", interrupt)
+    monkeypatch.setattr(SB3Monitor, "_on_step", ctrl_c)
     with pytest.raises(KeyboardInterrupt):
         train_mod.train(cfg, progress=False)
-    state = json.loads((tmp_path / "run/checkpoints/state.json").read_text())
-    assert state["steps"] == 130 and not (tmp_path / "run/model.zip").exists()
-    monkeypatch.setattr(train_mod.Progress, "_on_step", original)
-
+    run = Path(cfg.run_dir)
+    state = pickle.loads((run / "checkpoints/state.pkl").read_bytes())
+    assert not (run / "model.zip").exists()
+    monkeypatch.setattr(SB3Monitor, "_on_step", original)
     started = []
     learn = train_mod.DQN.learn
 
@@ -141,13 +206,39 @@ def test_resume_continues_from_the_checkpoint(tmp_path, monkeypatch, backend):
 
     monkeypatch.setattr(train_mod.DQN, "learn", spy)
     train_mod.train(replace(cfg, resume=True), progress=False)
-    assert started == [(130, 240 - 130)]
+    return state, started
+
+
+def _parameters(run) -> np.ndarray:
     from bgap.agents.dqn import DQN
 
-    model = DQN.load(tmp_path / "run/model.zip")
-    assert model.num_timesteps == 240
-    final = json.loads((tmp_path / "run/checkpoints/state.json").read_text())
-    assert final["episodes"] > state["episodes"]
+    model = DQN.load(Path(run) / "model.zip", device="cpu")
+    return np.concatenate([p.detach().numpy().ravel() for p in model.policy.parameters()])
+
+
+def test_interrupted_and_resumed_training_equals_an_uninterrupted_one(tmp_path, monkeypatch):
+    """Vector backend: the checkpoint keeps the environments and random streams, so the
+    resumed run ends with exactly the parameters of one never interrupted."""
+    from bgap.train import train
+
+    cfg = _short(tmp_path, "backend=vector", "profile.n_envs=2", "mix_sampling=paper")
+    whole = train(replace(cfg, run_dir=str(tmp_path / "whole")), progress=False)
+    cut = replace(cfg, run_dir=str(tmp_path / "cut"))
+    state, started = _interrupted_then_resumed(cut, monkeypatch, at=130)
+    assert state["monitor"]["steps"] == 130  # the end of the iteration of the Ctrl-C
+    assert started == [(130, 240 - 130)]
+    np.testing.assert_array_equal(_parameters(whole), _parameters(tmp_path / "cut"))
+
+
+def test_resume_continues_from_the_checkpoint_on_highway_env(tmp_path, monkeypatch):
+    """highway-env's environments are not saved: the resumed run continues the counters,
+    the model and the replay buffer on fresh episodes."""
+    cfg = replace(_short(tmp_path, "backend=highway"), run_dir=str(tmp_path / "run"))
+    state, started = _interrupted_then_resumed(cfg, monkeypatch, at=130)
+    assert state["monitor"]["steps"] == 130 and started == [(130, 240 - 130)]
+    final = pickle.loads((tmp_path / "run/checkpoints/state.pkl").read_bytes())
+    assert final["monitor"]["steps"] == 240
+    assert final["monitor"]["episodes"] > state["monitor"]["episodes"]
 
 
 @pytest.mark.parametrize("backend", ["vector", "highway"])

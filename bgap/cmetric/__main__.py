@@ -1,6 +1,7 @@
-"""``python -m bgap.cmetric TRAJECTORIES [overrides]``: score every vehicle of a log.
+"""``python -m bgap.cmetric input=TRAJECTORIES [overrides]``: score every vehicle of a log.
 
-    python -m bgap.cmetric data/dense/trajectories.parquet cmetric.mu=60 plot_vehicles=[3,7]
+    python -m bgap.cmetric input=data/dense/trajectories.parquet cmetric.mu=60 plot_vehicles=[3,7]
+    python -m bgap.cmetric data/dense/trajectories.parquet     # a bare path means input=PATH
 
 Writes ``<stem>_cmetric.csv`` (or ``out=...``, .csv or .parquet): one row per vehicle with
 each style's mean SLE / SIE and the aggressiveness score; ``<stem>_cmetric_windows.parquet``
@@ -13,11 +14,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
-from bgap.config import CMetricAppConfig, compose, load
+from bgap.config import CMetricAppConfig, app, load
 
-USAGE = "usage: python -m bgap.cmetric TRAJECTORIES.(parquet|csv) [key=value ...]"
+USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
 
 def plot_centrality(result, vehicle_ids, path: Path) -> None:
@@ -49,18 +50,15 @@ def plot_centrality(result, vehicle_ids, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> int:
+def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> int:
+    """Score ``cfg.input`` and write the scores, windows, plot and config; the exit status."""
     from bgap.cmetric import TrajectoryError, score_trajectories
     from bgap.cmetric.score import label_auc
 
-    argv = list(sys.argv[1:] if argv is None else argv)
-    paths = [a for a in argv if "=" not in a]
-    if len(paths) != 1 or paths[0] in ("-h", "--help"):
-        print(USAGE + "\n" + (__doc__ or ""), file=sys.stderr)
+    if not cfg.input:
+        print(f"bgap.cmetric: no trajectory table given\n{USAGE}", file=sys.stderr)
         return 2
-    source = Path(paths[0])
-    dcfg = compose("cmetric_app", [a for a in argv if "=" in a])
-    cfg: CMetricAppConfig = load(dcfg)
+    source = Path(cfg.input)
     try:
         result = score_trajectories(source, cfg.cmetric, fps=cfg.fps, progress=True)
     except TrajectoryError as err:
@@ -92,5 +90,19 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+@app("cmetric_app")
+def _hydra_main(dcfg: DictConfig) -> None:
+    status = score(load(dcfg), dcfg)
+    if status:
+        sys.exit(status)
+
+
+def main() -> None:
+    """The Hydra app; a first argument without ``=`` (the old form) is taken as ``input=``."""
+    if len(sys.argv) > 1 and "=" not in sys.argv[1] and not sys.argv[1].startswith("-"):
+        sys.argv[1] = f"input={sys.argv[1]}"
+    _hydra_main()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

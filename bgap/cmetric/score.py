@@ -11,9 +11,9 @@ from tqdm import tqdm
 
 from bgap.cmetric.centrality import Scene, centralities
 from bgap.cmetric.io import load_trajectories
+from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.poly import fit_polynomials, sliding_windows, window_view
 from bgap.cmetric.styles import STYLES, window_aggressiveness, window_styles
-from bgap.config import CMetricConfig
 
 
 @dataclass

@@ -6,17 +6,22 @@ from typing import Any
 
 import gymnasium as gym
 
+from bgap.scenario import Scenario, env_config
+
 ENV_ID = "bgap/BehaviorHighway-v0"
 
 if ENV_ID not in gym.registry:
     gym.register(id=ENV_ID, entry_point="bgap.envs.highway:BehaviorHighwayEnv")
 
 
-def make_env(cfg: Any, render_mode: str | None = None) -> gym.Env:
-    """Build the behaviour-rich highway from a bgap config (dataclass or composed DictConfig)."""
-    from bgap.config import env_config
-
-    config = env_config(cfg)
+def make_highway(config: dict[str, Any], render_mode: str | None = None) -> gym.Env:
+    """The behaviour-rich highway (highway-env) from its config dictionary."""
     # Off-screen drawing needs no display (highway-env disables drawing under SDL's dummy driver).
-    config["offscreen_rendering"] = render_mode == "rgb_array"
+    config = {**config, "offscreen_rendering": render_mode == "rgb_array"}
     return gym.make(ENV_ID, config=config, render_mode=render_mode)
+
+
+def make_env(cfg: Scenario, render_mode: str | None = None, mix_sampling: str = "fixed") -> gym.Env:
+    """The behaviour-rich highway from a bgap config (any with env, reward, behavior, mix
+    and radius)."""
+    return make_highway(env_config(cfg, mix_sampling), render_mode)

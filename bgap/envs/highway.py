@@ -17,62 +17,11 @@ from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 
-from bgap.behaviors import (
-    AGGRESSIVE,
-    CLASSES,
-    COLORS,
-    CONSERVATIVE,
-    EGO,
-    count_aggressive,
-    create_driver,
-)
+from bgap.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
+from bgap.scenario import REWARD_TERMS, check_config, default_config
+from bgap.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
 
 FrameListener = Callable[["BehaviorHighwayEnv"], None]
-
-# Table I of the paper; v0 from the paper's commented-out line (25 m/s +-10%, 40 m/s).
-PAPER_BEHAVIOR: dict[str, Any] = {
-    "name": "paper",
-    CONSERVATIVE: {
-        "time_gap": 1.5,
-        "min_distance": 5.0,
-        "acc": 3.0,
-        "dec": 6.0,
-        "delta": None,
-        "v0": 25.0,
-        "v0_spread": 0.1,
-        "politeness": 0.5,
-        "min_acc_gain": 0.2,
-        "b_safe": 3.0,
-        "acc_max": None,
-    },
-    AGGRESSIVE: {
-        "time_gap": 1.2,
-        "min_distance": 2.5,
-        "acc": 6.0,
-        "dec": 9.0,
-        "delta": None,
-        "v0": 40.0,
-        "v0_spread": 0.0,
-        "politeness": 0.0,
-        "min_acc_gain": 0.0,
-        "b_safe": 9.0,
-        "acc_max": None,
-    },
-}
-
-# The paper's observation: presence, x, y, vx, vy of V vehicles (the ego's row first),
-# relative to the ego, normalised; vehicles behind are seen too.
-OBSERVATION: dict[str, Any] = {
-    "type": "Kinematics",
-    "features": ["presence", "x", "y", "vx", "vy"],
-    "absolute": False,
-    "normalize": True,
-    "clip": True,
-    "see_behind": True,
-    "order": "sorted",
-}
-
-REWARD_TERMS = ("collision_reward", "lane_change_reward", "right_lane_reward", "high_speed_reward")
 
 
 class _HookedRoad(Road):
@@ -91,50 +40,29 @@ class BehaviorHighwayEnv(HighwayEnv):
     """highway-v0 enriched with aggressive and conservative drivers.
 
     Config keys beyond highway-v0's: ``mix`` (fraction of aggressive background vehicles),
+    ``mix_sampling`` (``fixed``, or a new mix per episode: ``uniform``, ``paper``),
     ``perception_radius`` [m], ``behavior`` (parameters per class, see
-    :class:`bgap.config.DriverParams`), and a ``lane_change_reward`` that is really paid.
+    :class:`bgap.behaviors.DriverParams`), and a ``lane_change_reward`` that is really paid.
+    Defaults and checks: :mod:`bgap.scenario`, shared with the vectorised backend.
     """
 
     @classmethod
     def default_config(cls) -> dict:
-        config = super().default_config()
-        config.update(
-            {
-                "observation": {**OBSERVATION, "vehicles_count": 5},
-                "action": {"type": "DiscreteMetaAction", "target_speeds": [10, 15, 20, 25, 30]},
-                "lanes_count": 4,
-                "vehicles_count": 5,
-                "duration": 60,
-                "policy_frequency": 1,
-                "simulation_frequency": 15,
-                "mix": 0.5,
-                "perception_radius": 180.0,
-                "behavior": PAPER_BEHAVIOR,
-            }
-        )
-        return config
+        return default_config()
 
     def __init__(self, config: dict | None = None, render_mode: str | None = None) -> None:
         self.frame_listeners: list[FrameListener] = []
         self.frame = 0
         self.episode = -1
+        self._mix_rng = mix_stream(0)
         super().__init__(config, render_mode)
 
     # ---------------------------------------------------------------- configuration
     def configure(self, config: dict | None) -> None:
         super().configure(config)
-        mix, radius = self.config["mix"], self.config["perception_radius"]
-        if not 0.0 <= float(mix) <= 1.0:
-            raise ValueError(f"mix={mix!r} is invalid: must lie in [0, 1] (fraction aggressive)")
-        if not float(radius) > 0 or not np.isfinite(float(radius)):
-            raise ValueError(
-                f"perception_radius={radius!r} is invalid: must be a positive distance"
-            )
-        unknown = set(self.config["behavior"]) - {"name", *CLASSES}
-        if unknown:
-            raise ValueError(f"behavior has unknown classes {sorted(unknown)}; use {CLASSES}")
+        check_config(self.config)
         # highway-env reads the perception distance from this class constant at observe time.
-        self.PERCEPTION_DISTANCE = float(radius)
+        self.PERCEPTION_DISTANCE = float(self.config["perception_radius"])
 
     def define_spaces(self) -> None:
         super().define_spaces()
@@ -143,6 +71,11 @@ class BehaviorHighwayEnv(HighwayEnv):
         self.observation_space = spaces.Box(-1.0, 1.0, shape=space.shape, dtype=space.dtype)
 
     # ---------------------------------------------------------------- scene creation
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None:  # the mix draws have their own stream (bgap.behaviors.mix_stream)
+            self._mix_rng = mix_stream(seed)
+        return super().reset(seed=seed, options=options)
+
     def _reset(self) -> None:
         self.episode += 1
         self.frame = 0
@@ -153,7 +86,9 @@ class BehaviorHighwayEnv(HighwayEnv):
 
     def _create_road(self) -> None:
         self.road = _HookedRoad(
-            network=RoadNetwork.straight_road_network(self.config["lanes_count"], speed_limit=30),
+            network=RoadNetwork.straight_road_network(
+                self.config["lanes_count"], speed_limit=SPEED_LIMIT
+            ),
             np_random=self.np_random,
             record_history=self.config["show_trajectories"],
             on_step=self._after_frame,
@@ -162,7 +97,8 @@ class BehaviorHighwayEnv(HighwayEnv):
     def _create_vehicles(self) -> None:
         """highway-v0's spawning, with exactly round(mix * n) aggressive drivers at random."""
         n = int(self.config["vehicles_count"])
-        n_aggressive = count_aggressive(float(self.config["mix"]), n)
+        self.mix = episode_mix(self.config, self._mix_rng)
+        n_aggressive = count_aggressive(self.mix, n)
         labels = np.array([AGGRESSIVE] * n_aggressive + [CONSERVATIVE] * (n - n_aggressive))
         labels = self.np_random.permutation(labels)
 

@@ -17,6 +17,8 @@ import math
 import numba as nb
 import numpy as np
 
+from bgap import vocab
+
 # Float state fields --------------------------------------------------------------------
 X, Y, HEADING, SPEED, TARGET_SPEED, TIMER, IMPACT_X, IMPACT_Y, STEER, ACC = range(10)
 N_FLOAT = 10
@@ -31,22 +33,22 @@ N_PARAM = 11
 # P_BSAFE [LANE_CHANGE_MAX_BRAKING_IMPOSED], P_AMAX [ACC_MAX], P_VMAX [MAX_SPEED],
 # P_OWN: 1 for bgap's BehaviorVehicle (own parameters in predictions, no speed-limit clip).
 
-# Labels
-EGO, CONSERVATIVE, AGGRESSIVE = 0, 1, 2
-# Ego meta-actions (highway-env DiscreteMetaAction.ACTIONS_ALL)
-LANE_LEFT, IDLE, LANE_RIGHT, FASTER, SLOWER = 0, 1, 2, 3, 4
+# Labels and ego meta-actions (bgap.vocab: highway-env's DiscreteMetaAction.ACTIONS_ALL)
+EGO, CONSERVATIVE, AGGRESSIVE = (vocab.LABEL_CODES[k] for k in (vocab.EGO, *vocab.CLASSES))
+LANE_LEFT, IDLE, LANE_RIGHT = vocab.LANE_LEFT, vocab.IDLE, vocab.LANE_RIGHT
+FASTER, SLOWER = vocab.FASTER, vocab.SLOWER
 
-# Constants of highway-env's vehicles and road
-LENGTH, WIDTH = 5.0, 2.0
+# Constants of highway-env's vehicles and road (bgap.vocab reads them from highway-env)
+LENGTH, WIDTH = vocab.VEHICLE_LENGTH, vocab.VEHICLE_WIDTH
 DIAGONAL = math.sqrt(LENGTH**2 + WIDTH**2)
-LANE_WIDTH = 4.0
-ROAD_LENGTH = 10_000.0
-SPEED_LIMIT = 30.0
-TAU_ACC, TAU_HEADING, TAU_LATERAL = 0.6, 0.2, 0.6
+LANE_WIDTH = vocab.LANE_WIDTH
+ROAD_LENGTH = vocab.ROAD_LENGTH
+SPEED_LIMIT = vocab.SPEED_LIMIT
+TAU_ACC, TAU_HEADING, TAU_LATERAL = vocab.TAU_ACC, vocab.TAU_HEADING, vocab.TAU_LATERAL
 KP_A, KP_HEADING, KP_LATERAL = 1 / TAU_ACC, 1 / TAU_HEADING, 1 / TAU_LATERAL
-MAX_STEERING = math.pi / 3
-LANE_CHANGE_DELAY = 1.0
-EGO_MAX_SPEED, MIN_SPEED = 40.0, -40.0
+MAX_STEERING = vocab.MAX_STEERING
+LANE_CHANGE_DELAY = vocab.LANE_CHANGE_DELAY
+EGO_MAX_SPEED, MIN_SPEED = vocab.EGO_MAX_SPEED, vocab.MIN_SPEED
 
 _jit = nb.njit(cache=True, nogil=True, error_model="numpy")
 

@@ -2,7 +2,7 @@
 
 The same traffic model as :class:`bgap.envs.highway.BehaviorHighwayEnv` (highway-env is the
 reference), kept in arrays and stepped by the numba kernels of :mod:`bgap.sim.core`. It
-takes the same highway-env config dictionary (:func:`bgap.config.env_config`), follows the
+takes the same config dictionary (:func:`bgap.scenario.env_config`), follows the
 gymnasium vector-env API with same-step auto-reset, and loads highway-env scenes
 (:func:`scene_from_highway`) so that the two can be compared from identical starts.
 
@@ -29,10 +29,12 @@ from bgap.behaviors import (
     DRIVER_ATTRIBUTES,
     BehaviorVehicle,
     count_aggressive,
+    episode_mix,
     is_stock,
     mix_stream,
-    sample_mix,
 )
+from bgap.errors import check
+from bgap.scenario import REWARD_TERMS, full_config
 from bgap.sim import core
 from bgap.sim.core import (
     ACC,
@@ -57,7 +59,6 @@ from bgap.sim.core import (
     Y,
 )
 
-LABEL_NAMES = {EGO: "ego", CONSERVATIVE: "conservative", AGGRESSIVE: "aggressive"}
 _CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
 
 # Parameter column of each IDMVehicle attribute, in highway-env's units except P_B, which
@@ -122,19 +123,6 @@ def check_supported(config: dict[str, Any]) -> None:
         raise ValueError("simulation_frequency must be a multiple of policy_frequency")
 
 
-def full_config(config: dict[str, Any]) -> dict[str, Any]:
-    """The environment's default config updated with ``config`` (as highway-env does)."""
-    from bgap.envs.highway import BehaviorHighwayEnv
-
-    full = BehaviorHighwayEnv.default_config()
-    for key, value in config.items():
-        if isinstance(value, dict) and isinstance(full.get(key), dict):
-            full[key] = {**full[key], **value}
-        else:
-            full[key] = value
-    return full
-
-
 @dataclass
 class Scene:
     """One environment's state in the kernel layout (ego first), for loading and saving."""
@@ -149,13 +137,14 @@ class VectorHighway(gym.vector.VectorEnv):
     """``num_envs`` behaviour-rich highways in lock step.
 
     Args:
-        config: highway-env config dictionary of ``bgap/BehaviorHighway-v0``
-            (:func:`bgap.config.env_config`); missing keys take that env's defaults.
+        config: the environment's config dictionary (:func:`bgap.scenario.env_config`);
+            missing keys take :func:`bgap.scenario.default_config`'s values. Its
+            ``mix_sampling`` (``fixed``, ``uniform`` or ``paper``) draws a mix per env at
+            every reset from the env's own stream.
         num_envs: B.
-        record: keep every simulation frame of the last step in :attr:`frames`
-            (``(B, frames_per_step, n + 1, 7)``, fields :data:`RECORD_FIELDS`), for recording.
-        mix_sampling: ``fixed`` (the config's mix), ``uniform`` in [0, 1] or ``paper`` (one
-            of the paper's mixes), drawn per env at every reset from its own stream.
+        record: report every simulation frame in ``info`` (:mod:`bgap.simulators` gives
+            the layout): ``frames`` after a step, ``reset_frames`` and ``labels`` after a
+            reset.
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
@@ -165,23 +154,16 @@ class VectorHighway(gym.vector.VectorEnv):
         config: dict[str, Any],
         num_envs: int,
         record: bool = False,
-        mix_sampling: str = "fixed",
     ) -> None:
         self.config = full_config(config)
         check_supported(self.config)
         cfg = self.config
-        mix = float(cfg["mix"])
-        if not 0.0 <= mix <= 1.0:
-            raise ValueError(f"mix={mix!r} is invalid: must lie in [0, 1] (fraction aggressive)")
         self.num_envs = int(num_envs)
-        if self.num_envs < 1:
-            raise ValueError(f"num_envs={num_envs!r} is invalid: must be >= 1")
+        check(self.num_envs >= 1, "num_envs", num_envs, "must be >= 1")
         self.lanes = int(cfg["lanes_count"])
         self.n = int(cfg["vehicles_count"])
-        if mix_sampling not in ("fixed", "uniform", "paper"):
-            raise ValueError(f"mix_sampling={mix_sampling!r}: use fixed, uniform or paper")
-        self.mix_sampling = mix_sampling
-        self.n_aggressive = np.full(num_envs, count_aggressive(mix, self.n))
+        self.record = record
+        self.n_aggressive = np.full(num_envs, count_aggressive(float(cfg["mix"]), self.n))
         self.radius = float(cfg["perception_radius"])
         self.rows = int(cfg["observation"]["vehicles_count"])
         self.frames_per_step = int(cfg["simulation_frequency"]) // int(cfg["policy_frequency"])
@@ -206,17 +188,7 @@ class VectorHighway(gym.vector.VectorEnv):
         self.observation_space = spaces.Box(-1.0, 1.0, (b, self.rows, 5), np.float32)
         self.action_space = spaces.MultiDiscrete(np.full(b, 5))
         # Weights in the order of core.ego_terms' first four columns.
-        self._w = np.array(
-            [
-                float(cfg[k])
-                for k in (
-                    "collision_reward",
-                    "lane_change_reward",
-                    "right_lane_reward",
-                    "high_speed_reward",
-                )
-            ]
-        )
+        self._w = np.array([float(cfg[k]) for k in REWARD_TERMS])
         # highway-env normalises x by 5 MAX_SPEED and v by 2 MAX_SPEED of the base Vehicle.
         self._x_range, self._v_range = 5.0 * core.EGO_MAX_SPEED, 2.0 * core.EGO_MAX_SPEED
 
@@ -237,9 +209,7 @@ class VectorHighway(gym.vector.VectorEnv):
         idx = core.speed_to_index(25.0, self.speeds)
         g[0, SPEED_INDEX], f[0, TARGET_SPEED] = idx, self.speeds[idx]
         g[0, LABEL] = EGO
-        if self.mix_sampling != "fixed":
-            mix = sample_mix(self._mix_rngs[b], self.mix_sampling)
-            self.n_aggressive[b] = count_aggressive(mix, n)
+        self.n_aggressive[b] = count_aggressive(episode_mix(cfg, self._mix_rngs[b]), n)
         k = int(self.n_aggressive[b])
         labels = np.array([AGGRESSIVE] * k + [CONSERVATIVE] * (n - k))
         labels = rng.permutation(labels)
@@ -281,6 +251,30 @@ class VectorHighway(gym.vector.VectorEnv):
     def scene(self, b: int) -> Scene:
         return Scene(self.f[b].copy(), self.g[b].copy(), self.p[b].copy(), int(self.steps[b]))
 
+    def state_dict(self) -> dict[str, Any]:
+        """Everything the next steps depend on (every env's state and random streams), to
+        resume a training exactly (:meth:`load_state_dict`)."""
+        return {
+            "arrays": {
+                k: getattr(self, k).copy() for k in ("f", "g", "p", "steps", "n_aggressive")
+            },
+            "rngs": [r.bit_generator.state for r in self._rngs],
+            "mix_rngs": [r.bit_generator.state for r in self._mix_rngs],
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        for key, value in state["arrays"].items():
+            if getattr(self, key).shape != value.shape:
+                raise ValueError(
+                    f"saved {key} has shape {value.shape}, this env {getattr(self, key).shape}"
+                )
+            getattr(self, key)[...] = value
+        for rngs, saved in ((self._rngs, state["rngs"]), (self._mix_rngs, state["mix_rngs"])):
+            rngs[:] = [np.random.default_rng() for _ in saved]
+            for rng, bit_state in zip(rngs, saved, strict=True):
+                rng.bit_generator.state = bit_state
+        self._observe()
+
     # ------------------------------------------------------------------ gymnasium API
     def reset(
         self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None
@@ -300,7 +294,11 @@ class VectorHighway(gym.vector.VectorEnv):
             self._spawn(b)
         obs = self._observe()
         zero = np.zeros(self.num_envs, dtype=bool)
-        return obs.copy(), self._info(zero)
+        info = self._info(zero)
+        if self.record:
+            info["reset_frames"] = initial_states(self)
+            info["labels"] = self.g[:, :, LABEL].copy()
+        return obs.copy(), info
 
     def step(
         self, actions: np.ndarray
@@ -325,6 +323,8 @@ class VectorHighway(gym.vector.VectorEnv):
         truncated = self.steps >= self.max_steps
         info = self._info(terms["lane_change_reward"] > 0)
         info["rewards"] = terms
+        if self.record:
+            info["frames"] = self.frames.copy()
         done = terminated | truncated
         if done.any():
             info["final_obs"] = np.empty(self.num_envs, dtype=object)
@@ -333,6 +333,10 @@ class VectorHighway(gym.vector.VectorEnv):
                 info["final_obs"][b] = obs[b].copy()
                 self._spawn(b)
             obs = self._observe()
+            if self.record:
+                info["reset_frames"] = initial_states(self)
+                info["labels"] = self.g[:, :, LABEL].copy()
+                info["_reset_frames"] = done.copy()
         return obs.copy(), rewards, terminated, truncated, info
 
     def close(self, **kwargs: Any) -> None:  # nothing to release

@@ -1,11 +1,11 @@
-"""Statistical parity of the two backends: ``python -m bgap.sim.parity``.
+"""Statistical parity of the two backends: ``python -m bgap.parity``.
 
 Runs the same number of seeded episodes on highway-env (``backend=highway``) and on the
 vectorised simulator (``backend=vector``) for several mixes, with a fixed scripted ego
 policy, and compares per class the mean vehicle speed and lane changes per vehicle-minute,
 and the ego collision rate, with 95% confidence intervals. Writes ``parity.csv`` and
 ``parity.png`` to ``--out``. Both backends are measured from per-frame states in the same
-way (:func:`episode_stats`).
+way (:func:`episode_stats`), from the trajectories :func:`bgap.rollout.rollout` records.
 """
 
 from __future__ import annotations
@@ -16,15 +16,29 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.sim.core import AGGRESSIVE, CONSERVATIVE, LABEL
+from bgap.rollout import rollout
+from bgap.stats import t_interval, wilson_interval
+from bgap.vocab import CLASSES
 
 # The scripted ego: a fixed cycle of meta-actions (indexed by the policy step), busy enough
 # to crash now and then in dense traffic.
 SCRIPT = (3, 0, 1, 2, 4, 1, 2, 0)
 
 
-def scripted_action(step: int) -> int:
-    return SCRIPT[step % len(SCRIPT)]
+class ScriptedEgo:
+    """The cycle :data:`SCRIPT`, one action per policy step, the same for every episode of a
+    batch (the rollout steps its episodes in lock step and calls :meth:`reset` per batch)."""
+
+    def __init__(self) -> None:
+        self.step = 0
+
+    def reset(self) -> None:
+        self.step = 0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        action = SCRIPT[self.step % len(SCRIPT)]
+        self.step += 1
+        return np.full(len(obs), action)
 
 
 def episode_stats(
@@ -33,12 +47,12 @@ def episode_stats(
     """Per-class mean speed and lane changes per vehicle-minute of one episode.
 
     ``speeds`` and ``lanes`` are (frames, vehicles) for the background vehicles, ``labels``
-    their class codes (:mod:`bgap.sim.core`)."""
+    their class names."""
     minutes = (lanes.shape[0] - 1) * dt / 60.0
     changes = (np.diff(lanes, axis=0) != 0).sum(axis=0)
     out: dict[str, float] = {"crashed": float(crashed)}
-    for code, name in ((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive")):
-        cols = labels == code
+    for name in CLASSES:
+        cols = labels == name
         if cols.any() and minutes > 0:
             out[f"speed_{name}"] = float(speeds[:, cols].mean())
             out[f"lane_changes_{name}"] = float(changes[cols].sum() / (cols.sum() * minutes))
@@ -48,77 +62,29 @@ def episode_stats(
     return out
 
 
-def run_highway(config: dict, seeds: list[int]) -> pd.DataFrame:
-    """Episodes on highway-env, states read after every frame."""
-    import gymnasium as gym
-
-    from bgap.envs import ENV_ID
-    from bgap.sim.vector import scene_from_highway
-
-    env = gym.make(ENV_ID, config=config).unwrapped
-    frames: list[tuple[np.ndarray, np.ndarray]] = []
-
-    def listen(e) -> None:
-        vehicles = e.road.vehicles[1:]
-        frames.append(
-            (np.array([v.speed for v in vehicles]), np.array([v.lane_index[2] for v in vehicles]))
-        )
-
-    env.frame_listeners.append(listen)
+def run(config: dict, seeds: list[int], backend: str) -> pd.DataFrame:
+    """The scripted ego's episodes on ``backend``, one row of :func:`episode_stats` each."""
+    result = rollout(
+        config, ScriptedEgo(), seeds, backend, batch=64 if backend == "vector" else 1, record=True
+    )
+    dt = 1.0 / float(config["simulation_frequency"])
     rows = []
-    for seed in seeds:
-        frames.clear()
-        env.reset(seed=seed)
-        labels = scene_from_highway(env).g[1:, LABEL]
-        step, done, crashed = 0, False, False
-        while not done:
-            _, _, term, trunc, info = env.step(scripted_action(step))
-            step, done, crashed = step + 1, term or trunc, bool(info["crashed"])
-        speeds = np.stack([s for s, _ in frames])
-        lanes = np.stack([lane for _, lane in frames])
-        dt = 1.0 / env.config["simulation_frequency"]
-        rows.append({"seed": seed, **episode_stats(speeds, lanes, labels, dt, crashed)})
-    return pd.DataFrame(rows)
-
-
-def run_vector(config: dict, seeds: list[int], batch: int = 64) -> pd.DataFrame:
-    """Episodes on the vectorised backend, ``batch`` at a time, frames recorded."""
-    from bgap.sim.vector import RECORD_FIELDS, VectorHighway
-
-    speed_col, lane_col = RECORD_FIELDS.index("speed"), RECORD_FIELDS.index("lane")
-    rows = []
-    for start in range(0, len(seeds), batch):
-        chunk = seeds[start : start + batch]
-        venv = VectorHighway(config, len(chunk), record=True)
-        venv.reset(seed=chunk)
-        labels = venv.g[:, 1:, LABEL].copy()
-        speeds = [[venv.f[b, 1:, 3].copy()] for b in range(len(chunk))]
-        lanes = [[venv.g[b, 1:, 0].astype(float)] for b in range(len(chunk))]
-        live = np.ones(len(chunk), dtype=bool)
-        crashed = np.zeros(len(chunk), dtype=bool)
-        step = 0
-        while live.any():
-            actions = np.full(len(chunk), scripted_action(step))
-            _, _, term, trunc, _ = venv.step(actions)
-            for b in np.flatnonzero(live):  # copies: venv.frames is overwritten every step
-                speeds[b].extend(venv.frames[b, :, 1:, speed_col].copy())
-                lanes[b].extend(venv.frames[b, :, 1:, lane_col].copy())
-                if term[b] or trunc[b]:
-                    live[b], crashed[b] = False, bool(term[b])
-            step += 1
-        for b, seed in enumerate(chunk):
-            stats = episode_stats(
-                np.stack(speeds[b]), np.stack(lanes[b]), labels[b], venv.dt, crashed[b]
-            )
-            rows.append({"seed": seed, **stats})
+    table = result.trajectories.sort_values(["episode", "frame", "vehicle_id"])
+    for (episode, group), crashed in zip(
+        table.groupby("episode", sort=True), result.episodes.crashed, strict=True
+    ):
+        n = group.vehicle_id.nunique()
+        speeds = group.speed.to_numpy().reshape(-1, n)[:, 1:]
+        lanes = group.lane.to_numpy(dtype=float).reshape(-1, n)[:, 1:]
+        labels = group.label.to_numpy()[1:n]
+        stats = episode_stats(speeds, lanes, labels, dt, bool(crashed))
+        rows.append({"seed": seeds[episode], **stats})
     return pd.DataFrame(rows)
 
 
 def compare(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per mix, metric and backend: mean and 95% CI; per mix and metric: whether the
     backends' intervals overlap."""
-    from bgap.evaluate import t_interval, wilson_interval
-
     rows = []
     metrics = [c for c in episodes.columns if c not in ("seed", "mix", "backend")]
     for (mix, backend), group in episodes.groupby(["mix", "backend"]):
@@ -178,7 +144,8 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 def main(argv: list[str] | None = None) -> None:
     from tqdm.auto import tqdm
 
-    from bgap.config import compose, env_config, validate
+    from bgap.config import compose, validate
+    from bgap.scenario import env_config
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="dense")
@@ -208,10 +175,10 @@ def main(argv: list[str] | None = None) -> None:
         if args.duration:
             overrides.append(f"env.duration={args.duration}")
         config = env_config(validate(compose("simulate", overrides)))
-        for backend, run in (("vector", run_vector), ("highway", run_highway)):
+        for backend in ("vector", "highway"):
             if backend not in backends:
                 continue
-            df = run(config, seeds)
+            df = run(config, seeds, backend)
             df["mix"], df["backend"] = mix, backend
             frames.append(df)
             pd.concat(frames).to_csv(out / "episodes.csv", index=False)

@@ -1,0 +1,212 @@
+"""Training's bookkeeping: episode statistics, the episode budget, periodic evaluation and
+checkpoints that resume a run exactly.
+
+:class:`TrainingMonitor` knows no learning algorithm: a learner reports each vector step
+(:meth:`~TrainingMonitor.on_step`) and hands it functions that save itself. :class:`SB3Monitor`
+is the adapter for Stable-Baselines3's learners, as a callback.
+
+Why not SB3's own callbacks: ``StopTrainingOnMaxEpisodes`` counts ``max_episodes`` per
+environment and restarts its count on resume, while the paper's budget is episodes in total;
+``EvalCallback`` evaluates every N steps with ``evaluate_policy``, which neither seeds the
+episodes (every policy must meet the same traffic) nor reports collisions; and
+``CheckpointCallback(save_replay_buffer=True)`` keeps one model and one replay buffer per
+checkpoint (hundreds of MB for a dense paper-scale run) and not the environments' or the
+random streams' state, which an exact resume needs.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import threading
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from stable_baselines3.common.callbacks import BaseCallback
+
+from bgap.rollout import EpisodeStats, greedy, rollout
+
+INFO_KEYS = ("ego_speed", "lane_change", "crashed")
+
+
+def stack_infos(infos: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """SB3's list of per-env info dicts as the vector info (a dict of arrays) both simulators
+    return, for :class:`~bgap.rollout.EpisodeStats`."""
+    stacked: dict[str, Any] = {k: np.array([info[k] for info in infos]) for k in INFO_KEYS}
+    if all("rewards" in info for info in infos):
+        terms = infos[0]["rewards"].keys()
+        stacked["rewards"] = {t: np.array([info["rewards"][t] for info in infos]) for t in terms}
+    return stacked
+
+
+class TrainingMonitor:
+    """Counts episodes (the paper's budget unit), logs their statistics, evaluates the greedy
+    policy every ``eval_every`` episodes on seeded episodes of its own training traffic, and
+    writes checkpoints.
+
+    Args:
+        run_dir: the run folder (``evaluations.csv``, ``checkpoints/``).
+        num_envs: training environments stepped together.
+        env_config: the training environment's config dictionary (evaluation plays it with
+            a fixed mix: ``mix_sampling`` is switched off).
+        backend: simulator of the evaluations.
+        max_episodes: stop after this many episodes in total (None: no episode budget).
+        eval_every, eval_episodes, eval_seed: evaluate every ``eval_every`` episodes (0: never)
+            on ``eval_episodes`` episodes seeded ``eval_seed + k``.
+        state: counters restored from a checkpoint (``episodes``, ``steps``).
+        log: ``log(key, value)`` records a scalar (TensorBoard).
+    """
+
+    def __init__(
+        self,
+        run_dir: Path,
+        num_envs: int,
+        env_config: dict[str, Any],
+        backend: str,
+        max_episodes: int | None,
+        eval_every: int,
+        eval_episodes: int,
+        eval_seed: int,
+        state: dict[str, Any] | None = None,
+        log: Callable[[str, float], None] = lambda key, value: None,
+    ) -> None:
+        self.run_dir = Path(run_dir)
+        self.env_config = {**env_config, "mix_sampling": "fixed"}
+        self.backend, self.max_episodes = backend, max_episodes
+        self.eval_every, self.eval_episodes, self.eval_seed = eval_every, eval_episodes, eval_seed
+        self.state = {"episodes": 0, "steps": 0, **(state or {})}
+        self.stats = EpisodeStats(num_envs)
+        self.recent: list[dict[str, Any]] = []
+        self.log = log
+
+    def on_step(
+        self, rewards: np.ndarray, infos: dict[str, Any], dones: np.ndarray, policy: Any
+    ) -> bool:
+        """Account one vector step; False once the episode budget is spent. ``policy`` (with
+        SB3's ``predict``) is what a periodic evaluation plays."""
+        self.stats.add(np.arange(len(dones)), rewards, infos)
+        for i in np.flatnonzero(dones):
+            self.state["episodes"] += 1
+            self.recent = (self.recent + [self.stats.row(i)])[-20:]
+            self.stats.clear(i)
+            for key, name in (
+                ("crashed", "collision_rate"),
+                ("avg_speed", "avg_speed"),
+                ("lane_changes", "lane_changes"),
+                ("return", "return"),
+            ):
+                self.log(f"episode/{name}", float(np.mean([r[key] for r in self.recent])))
+            self.log("episode/count", self.state["episodes"])
+            if self.eval_every and self.state["episodes"] % self.eval_every == 0:
+                self.evaluate(policy)
+        return self.max_episodes is None or self.state["episodes"] < self.max_episodes
+
+    def evaluate(self, policy: Any) -> dict[str, float]:
+        """Greedy episodes of ``policy`` in its own traffic; appended to evaluations.csv."""
+        seeds = range(self.eval_seed, self.eval_seed + self.eval_episodes)
+        frame = rollout(self.env_config, greedy(policy), seeds, self.backend).episodes
+        record = {
+            "episodes": self.state["episodes"],
+            "steps": self.state["steps"],
+            "collision_pct": 100 * frame.crashed.mean(),
+            "avg_speed": frame.avg_speed.mean(),
+            "lane_changes": frame.lane_changes.mean(),
+            "return": frame["return"].mean(),
+        }
+        for key in ("collision_pct", "avg_speed", "lane_changes", "return"):
+            self.log(f"eval/{key}", float(record[key]))
+        path = self.run_dir / "evaluations.csv"
+        pd.DataFrame([record]).to_csv(path, mode="a", header=not path.exists(), index=False)
+        return record
+
+    def checkpoint(self, save: dict[str, Callable[[Path], Any]], extra: dict[str, Any]) -> None:
+        """Write ``checkpoints/``: each ``save[name](path)`` (the learner's model, replay
+        buffer, ...) and ``state.pkl`` (counters, running episode statistics, ``extra``: the
+        environments' and random streams' state). Each file is written under a temporary
+        name and moved into place, so a kill leaves the previous checkpoint readable."""
+        folder = self.run_dir / "checkpoints"
+        folder.mkdir(parents=True, exist_ok=True)
+        for name, write in save.items():
+            final = folder / name
+            tmp = folder / f"tmp.{name}"
+            write(tmp)
+            os.replace(tmp, final)
+        state = {"monitor": self.state, "stats": self.stats.__dict__, "recent": self.recent}
+        tmp = folder / "tmp.state.pkl"
+        tmp.write_bytes(pickle.dumps({**state, **extra}))
+        os.replace(tmp, folder / "state.pkl")
+
+    def restore(self, state: dict[str, Any]) -> None:
+        """The counters and running statistics of a checkpoint's ``state.pkl``."""
+        self.state.update(state["monitor"])
+        self.stats.__dict__.update(state["stats"])
+        self.recent = state["recent"]
+
+
+class SB3Monitor(BaseCallback):
+    """:class:`TrainingMonitor` as a Stable-Baselines3 callback.
+
+    Checkpoints are taken where the learner's state is whole: when a new rollout starts,
+    after the previous iteration stored its transition and made its gradient steps (inside a
+    step callback the environments have moved on but the transition is not stored yet). The
+    first Ctrl-C asks for a checkpoint at that point and then raises ``KeyboardInterrupt``; a
+    second one interrupts at once. ``extra_state()`` returns what the checkpoint keeps beside
+    the model and the replay buffer (environments, random streams)."""
+
+    def __init__(
+        self,
+        monitor: TrainingMonitor,
+        checkpoint_every: int,
+        extra_state: Callable[[], dict[str, Any]],
+    ) -> None:
+        super().__init__()
+        self.monitor, self.every, self.extra_state = monitor, checkpoint_every, extra_state
+        self.interrupted = False
+        self.saved_at: int | None = None
+        """Environment steps of the last checkpoint written (None: none yet)."""
+        monitor.log = lambda key, value: self.logger.record(key, value)
+
+    def _on_training_start(self) -> None:
+        self._last_ckpt = self.num_timesteps
+        self._previous_handler = None
+        if threading.current_thread() is threading.main_thread():
+            self._previous_handler = signal.signal(signal.SIGINT, self._request_stop)
+
+    def _request_stop(self, signum: int, frame: Any) -> None:
+        if self.interrupted:  # the second Ctrl-C: stop now
+            raise KeyboardInterrupt
+        self.interrupted = True
+
+    def _on_training_end(self) -> None:
+        if self._previous_handler is not None:
+            signal.signal(signal.SIGINT, self._previous_handler)
+
+    def _on_rollout_start(self) -> None:
+        if self.interrupted:
+            self.checkpoint()
+            self._on_training_end()
+            raise KeyboardInterrupt
+        if self.num_timesteps - self._last_ckpt >= self.every:
+            self.checkpoint()
+
+    def _on_step(self) -> bool:
+        self.monitor.state["steps"] = int(self.num_timesteps)
+        return self.monitor.on_step(
+            np.asarray(self.locals["rewards"]),
+            stack_infos(self.locals["infos"]),
+            np.asarray(self.locals["dones"]),
+            self.model,
+        )
+
+    def checkpoint(self) -> None:
+        """Model, replay buffer and state, as they are now."""
+        self.monitor.state["steps"] = int(self.model.num_timesteps)
+        self.monitor.checkpoint(
+            {"model.zip": self.model.save, "replay.pkl": self.model.save_replay_buffer},
+            self.extra_state(),
+        )
+        self._last_ckpt = self.saved_at = self.num_timesteps

@@ -1,0 +1,61 @@
+"""CMetric's parameters: a plain dataclass, usable without Hydra or any other part of bgap.
+
+The ``cmetric`` config group's YAML files hold values for it; ``bgap.cmetric``'s functions
+take it directly (``score_trajectories(table, CMetricConfig(mu=60))``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from bgap.errors import check
+
+
+@dataclass
+class StyleWeights:
+    """One number per aggressive style."""
+
+    overtaking: float = 1.0
+    overspeeding: float = 1.0
+    weaving: float = 1.0
+
+
+@dataclass
+class CMetricConfig:
+    """CMetric parameters (config group ``cmetric``); README "CMetric" says why each default."""
+
+    name: str = "default"
+    mu: float = 30.0
+    """Traffic-graph radius [m]: an edge joins vehicles closer than this."""
+    window: float = 3.0
+    """Length of the sliding windows the centrality polynomials are fitted on [s]."""
+    stride: float = 1.0
+    """Step between window starts [s]."""
+    degree: int = 2
+    """Degree of the centrality polynomials (the paper: 2)."""
+    regularization: float = 1e-6
+    """Ridge weight lambda of the least-squares fits, per sample, on normalised time."""
+    epsilon: float = 0.5
+    """Radius [s] of the ball in which a critical point's sharpness is measured (weaving)."""
+    sharpness_min: float = 1e-4
+    """Critical points with epsilon-sharpness at or below this are flat, not weaving."""
+    weights: StyleWeights = field(
+        default_factory=lambda: StyleWeights(overtaking=0.1, overspeeding=1.0, weaving=0.1)
+    )
+    """Weight of each style's likelihood in the aggressiveness score."""
+    scales: StyleWeights = field(
+        default_factory=lambda: StyleWeights(overtaking=0.0013, overspeeding=0.165, weaving=0.22)
+    )
+    """Each style's likelihood is divided by its scale before weighting (units: SLE units)."""
+
+    def __post_init__(self) -> None:
+        for key in ("mu", "window", "stride", "epsilon"):
+            v = getattr(self, key)
+            check(v > 0, f"cmetric.{key}", v, "must be positive")
+        check(self.degree >= 1, "cmetric.degree", self.degree, "must be >= 1")
+        check(self.regularization >= 0, "cmetric.regularization", self.regularization, ">= 0")
+        check(self.sharpness_min >= 0, "cmetric.sharpness_min", self.sharpness_min, ">= 0")
+        for style in ("overtaking", "overspeeding", "weaving"):
+            w, s = getattr(self.weights, style), getattr(self.scales, style)
+            check(w >= 0, f"cmetric.weights.{style}", w, "must be >= 0")
+            check(s > 0, f"cmetric.scales.{style}", s, "must be positive")

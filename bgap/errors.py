@@ -1,0 +1,19 @@
+"""The one error type for bad configuration values, and the check that raises it.
+
+A leaf with no imports, so that CMetric (which stands alone on any trajectory file) and the
+simulator schemas can validate their values the same way without importing each other.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+class ConfigError(ValueError):
+    """A configuration value is out of range; the message names the key and the fix."""
+
+
+def check(ok: bool, key: str, value: Any, rule: str) -> None:
+    """Raise :class:`ConfigError` naming ``key``, its ``value`` and the ``rule`` it breaks."""
+    if not ok:
+        raise ConfigError(f"{key}={value!r} is invalid: {rule}")

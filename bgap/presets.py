@@ -1,0 +1,68 @@
+"""Preset files: the configuration shipped inside the package, and presets users write.
+
+Hydra composes every command from ``bgap/conf`` (package data, so a non-editable install
+finds it). Presets written by a run of ``bgap.calibrate`` or ``bgap.sweep`` go under that
+run's output folder, ``<root>/presets/<group>/<name>.yaml``; Hydra finds them through its
+search path, which every command's primary config extends with
+``${oc.env:BGAP_PRESETS,outputs/presets}`` (so the default root needs nothing more;
+another folder: ``BGAP_PRESETS=/path/presets`` or ``hydra.searchpath=[file:///path/presets]``).
+A packaged preset of the same name wins, so the pipeline's presets cannot be shadowed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+CONF_DIR = str(Path(__file__).resolve().parent / "conf")
+"""The packaged configuration: Hydra's primary config folder."""
+SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
+"""The packaged Optuna search spaces of ``bgap.sweep``."""
+
+
+def preset_path(group: str, name: str) -> Path:
+    """The packaged preset ``<group>/<name>.yaml``."""
+    return Path(CONF_DIR) / group / f"{name}.yaml"
+
+
+def load_preset(schema: type, path: str | Path) -> Any:
+    """A config-group preset file as a validated ``schema`` object, without Hydra's search
+    path (its ``defaults`` list, naming the schema, is ignored)."""
+    values = OmegaConf.load(path)
+    values.pop("defaults", None)
+    return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), values))
+
+
+def write_preset(node: Any, group: str, path: str | Path, note: str) -> Path:
+    """Write dataclass ``node`` as a preset of config group ``group`` (``group=<stem>`` then
+    selects it when ``path`` is ``<search path>/<group>/<stem>.yaml``), headed by the comment
+    ``note``. Null values are left out: the groups written so (behavior, reward, agent)
+    default every optional field to null."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    body = OmegaConf.to_yaml(OmegaConf.structured(node))
+    body = "\n".join(line for line in body.splitlines() if not line.endswith(": null"))
+    path.write_text(f"# {note}\ndefaults:\n  - base_{group}\n{body}\n")
+    return path
+
+
+def selection_hint(group: str, path: str | Path) -> str:
+    """How to use a preset written to ``path``: the override, and the search path it needs
+    when it is not under the default presets folder."""
+    path = Path(path).resolve()
+    name = path.stem
+    hint = f"{group}={name}"
+    if preset_path(group, name).resolve() == path:
+        return hint
+    if preset_path(group, name).exists():
+        return (
+            f"{hint} selects the packaged preset of that name, which shadows this file: "
+            "write it under another name"
+        )
+    folder = path.parent.parent
+    default = (Path.cwd() / "outputs" / "presets").resolve()
+    if folder != default:
+        hint += f" hydra.searchpath=[file://{folder}]"
+    return hint

@@ -1,0 +1,264 @@
+"""Playing a policy on seeded episodes: the one rollout loop of bgap.
+
+    from bgap.rollout import rollout
+    result = rollout(env_config(cfg), "idle", seeds=range(100, 200), backend="vector")
+    result.episodes   # one row per episode: crashed, avg_speed, lane_changes, steps, ...
+
+Evaluation, dataset generation (``record=True`` adds every vehicle's trajectory), the
+parity study, calibration and training's periodic evaluation all play their episodes here,
+on either simulator (:func:`bgap.simulators.make_vector_env`). Episode ``k`` is seeded
+``seeds[k]``, and so is the policy's own randomness in it, so every policy meets the same
+traffic and a result does not depend on which episodes were played beside it.
+
+A policy is any of: a baseline name (``idle``, ``random``, ``left``); the path of a saved
+Stable-Baselines3 model (``model.zip`` or its run folder; DQN, PPO, A2C, SAC and TD3 are
+recognised from the file, or named as ``ppo:path``) or a loaded model (anything with SB3's
+``predict``), played greedily; a callable from a batch of observations ``(B, V, 5)`` to
+``B`` actions; or a callable ``(observations, rngs) -> actions`` that also gets one seeded
+random stream per episode.
+"""
+
+from __future__ import annotations
+
+import inspect
+import json
+import zipfile
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from bgap.errors import ConfigError
+from bgap.recorder import table_from_states
+from bgap.simulators import make_vector_env
+from bgap.vocab import BASELINES, IDLE, LABEL_NAMES, LANE_LEFT, N_ACTIONS
+
+Policy = Callable[[np.ndarray, list[np.random.Generator]], np.ndarray]
+"""A batch of observations (B, V, 5) and one random stream per episode -> B actions."""
+
+TERMS = ("collision", "lane_change", "right_lane", "high_speed")
+"""Reward terms whose per-step mean each episode row reports (``r_<term>``)."""
+
+
+# ---------------------------------------------------------------------------- policies
+def baseline(name: str) -> Policy:
+    """A scripted ego: ``idle`` holds lane and speed, ``left`` always asks for the left
+    lane, ``random`` draws a meta-action uniformly from the episode's stream."""
+    if name == "idle":
+        return lambda obs, rngs: np.full(len(obs), IDLE)
+    if name == "left":
+        return lambda obs, rngs: np.full(len(obs), LANE_LEFT)
+    if name == "random":
+        return lambda obs, rngs: np.array([r.integers(N_ACTIONS) for r in rngs])
+    raise ConfigError(f"policy={name!r} is not a baseline; use one of {BASELINES}")
+
+
+def greedy(model: Any) -> Policy:
+    """A trained model (SB3's ``predict``) as a policy: its greedy actions, one batched call."""
+    return lambda obs, rngs: np.asarray(model.predict(obs, deterministic=True)[0]).reshape(-1)
+
+
+def model_path(spec: str | Path) -> Path:
+    """``model.zip`` itself, or inside the run folder ``spec``."""
+    path = Path(spec)
+    if path.is_dir():
+        path = path / "model.zip"
+    if not path.exists():
+        raise FileNotFoundError(f"no model at {path}; train it with python -m bgap.train")
+    return path
+
+
+# Stable-Baselines3 stores no algorithm name in a model file; each algorithm's own saved
+# attributes tell them apart (A2C's and PPO's policies are the same class).
+_ALGORITHM_KEYS = (
+    ("dqn", "target_update_interval"),
+    ("ppo", "n_epochs"),
+    ("a2c", "n_steps"),
+    ("td3", "policy_delay"),
+    ("sac", "target_entropy"),
+)
+
+
+def load_model(spec: str | Path) -> Any:
+    """A saved Stable-Baselines3 model of any algorithm: ``[algo:]path`` (``ppo:run/model.zip``
+    names it; otherwise it is recognised from the attributes saved in the file). DQN models
+    load as bgap's DQN (SB3's, with the paper's loss and schedules)."""
+    import stable_baselines3 as sb3
+
+    from bgap.agents.dqn import DQN
+
+    classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3}
+    algo, _, rest = str(spec).partition(":")
+    if rest and algo.lower() in classes:
+        path, algo = model_path(rest), algo.lower()
+    else:
+        path = model_path(spec)
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+        found = [name for name, key in _ALGORITHM_KEYS if key in data]
+        if not found:
+            raise ValueError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
+        algo = found[0]
+    return classes[algo].load(path, device="cpu")
+
+
+def as_policy(spec: Any) -> tuple[Policy, int | None]:
+    """Any policy form (module docstring) as a :data:`Policy`, with the number of observation
+    rows it needs (None: any)."""
+    if isinstance(spec, (str, Path)):
+        if str(spec) in BASELINES:
+            return baseline(str(spec)), None
+        spec = load_model(spec)
+    if hasattr(spec, "predict"):
+        return greedy(spec), int(spec.observation_space.shape[0])
+    if not callable(spec):
+        raise TypeError(f"{spec!r} is not a policy (a baseline name, a model or a callable)")
+    try:
+        positional = [
+            p
+            for p in inspect.signature(spec).parameters.values()
+            if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD) and p.default is p.empty
+        ]
+    except (TypeError, ValueError):  # builtins without a signature: observations only
+        positional = [None]
+    if len(positional) == 1:
+        return (lambda obs, rngs: spec(obs)), None
+    return spec, None
+
+
+# ---------------------------------------------------------------------------- statistics
+class EpisodeStats:
+    """Running per-episode statistics of B environments, from the step infos both backends
+    share; :meth:`row` gives a finished episode's figures. Used by the rollout and by
+    training, so both count speed, lane changes and crashes the same way."""
+
+    def __init__(self, num_envs: int) -> None:
+        self.speed = np.zeros(num_envs)
+        self.steps = np.zeros(num_envs, dtype=np.int64)
+        self.lanes = np.zeros(num_envs, dtype=np.int64)
+        self.total = np.zeros(num_envs)
+        self.crashed = np.zeros(num_envs, dtype=bool)
+        self.terms = np.zeros((num_envs, len(TERMS)))
+
+    def add(self, idx: np.ndarray, reward: np.ndarray, info: dict[str, Any]) -> None:
+        """Account one step of envs ``idx`` (their rewards and the vector step's info)."""
+        self.speed[idx] += np.asarray(info["ego_speed"], dtype=float)[idx]
+        self.steps[idx] += 1
+        self.lanes[idx] += np.asarray(info["lane_change"], dtype=np.int64)[idx]
+        self.total[idx] += np.asarray(reward, dtype=float)[idx]
+        self.crashed[idx] = np.asarray(info["crashed"], dtype=bool)[idx]
+        rewards = info.get("rewards", {})
+        for k, term in enumerate(TERMS):
+            if f"{term}_reward" in rewards:
+                self.terms[idx, k] += np.asarray(rewards[f"{term}_reward"], dtype=float)[idx]
+
+    def row(self, i: int) -> dict[str, Any]:
+        """Env ``i``'s episode so far: crash, mean ego speed, lane changes, steps, return
+        and each reward term's mean per step."""
+        steps = max(int(self.steps[i]), 1)
+        return {
+            "crashed": bool(self.crashed[i]),
+            "avg_speed": float(self.speed[i] / steps),
+            "lane_changes": int(self.lanes[i]),
+            "steps": int(self.steps[i]),
+            "return": float(self.total[i]),
+            **{f"r_{term}": float(self.terms[i, k] / steps) for k, term in enumerate(TERMS)},
+        }
+
+    def clear(self, i: int) -> None:
+        for array in (self.speed, self.steps, self.lanes, self.total, self.crashed):
+            array[i] = 0
+        self.terms[i] = 0.0
+
+
+# ---------------------------------------------------------------------------- rollout
+@dataclass
+class Rollout:
+    """What :func:`rollout` played: one row per episode, and with ``record=True`` every
+    vehicle's trajectory (:mod:`bgap.recorder`'s schema; ``episode`` is the index of the
+    seed in ``seeds``)."""
+
+    episodes: pd.DataFrame
+    trajectories: pd.DataFrame | None = None
+    images: list[np.ndarray] = field(default_factory=list)
+    """With ``render=True``: pictures of the first episode (highway-env only)."""
+
+
+def rollout(
+    config: dict[str, Any],
+    policy: Any,
+    seeds: Iterable[int],
+    backend: str = "vector",
+    *,
+    batch: int | None = None,
+    record: bool = False,
+    render: bool = False,
+    progress: Callable[[int], Any] | None = None,
+) -> Rollout:
+    """Play ``policy`` for one episode per seed in the environment ``config`` on ``backend``.
+
+    Episodes run ``batch`` at a time side by side (default: all of them, at most 256, on the
+    vector backend; one at a time on highway-env, whose copies would idle once finished).
+    ``progress(k)`` is called with the number of episodes each batch finished.
+    """
+    seeds = [int(s) for s in seeds]
+    act, _ = as_policy(policy)
+    if batch is None:
+        batch = min(len(seeds), 256) if backend == "vector" else 1
+    rows, tables, images = [], [], []
+    for start in range(0, len(seeds), max(batch, 1)):
+        chunk = seeds[start : start + batch]
+        film = render and start == 0
+        venv = make_vector_env(config, len(chunk), backend, record=record, render=film)
+        reset = getattr(policy, "reset", None)
+        if callable(reset):  # stateful policies (a scripted ego) start over per batch
+            reset()
+        try:
+            result = _play(venv, act, chunk, record, film)
+        finally:
+            venv.close()
+        rows.extend({"seed": seed, **row} for seed, row in zip(chunk, result[0], strict=True))
+        if record:
+            dt = 1.0 / float(config.get("simulation_frequency", 15))
+            tables.extend(
+                table_from_states(states, labels, start + b, dt)
+                for b, (states, labels) in enumerate(result[1])
+            )
+        images.extend(result[2])
+        if progress is not None:
+            progress(len(chunk))
+    trajectories = pd.concat(tables, ignore_index=True) if record else None
+    return Rollout(pd.DataFrame(rows), trajectories, images)
+
+
+def _play(
+    venv: Any, act: Policy, seeds: Sequence[int], record: bool, film: bool
+) -> tuple[list[dict], list[tuple[np.ndarray, list[str]]], list[np.ndarray]]:
+    """Every env's first episode after a seeded reset; an env that finished idles (its next
+    episode is not counted)."""
+    b = len(seeds)
+    obs, info = venv.reset(seed=list(seeds))
+    rngs = [np.random.default_rng(seed) for seed in seeds]
+    stats = EpisodeStats(b)
+    live = np.ones(b, dtype=bool)
+    frames = [[info["reset_frames"][i]] for i in range(b)] if record else []
+    labels = [[LABEL_NAMES[int(c)] for c in info["labels"][i]] for i in range(b)] if record else []
+    images = list(info["images"][0]) if film else []
+    while live.any():
+        idx = np.flatnonzero(live)
+        actions = np.full(b, IDLE)
+        actions[idx] = act(obs[idx], [rngs[i] for i in idx])
+        obs, reward, terminated, truncated, info = venv.step(actions)
+        stats.add(idx, reward, info)
+        if record:
+            for i in idx:  # copies: a backend may reuse its frame buffer
+                frames[i].append(np.array(info["frames"][i], copy=True))
+        if film and live[0]:
+            images.extend(info["images"][0])
+        live &= ~(terminated | truncated)
+    episodes = [stats.row(i) for i in range(b)]
+    trajectories = [(np.concatenate(frames[i]), labels[i]) for i in range(b)] if record else []
+    return episodes, trajectories, images

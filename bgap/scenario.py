@@ -1,0 +1,221 @@
+"""The scenario every simulator runs: road, traffic, reward, and their one validator.
+
+Both backends (highway-env's :class:`~bgap.envs.highway.BehaviorHighwayEnv` and the
+vectorised :class:`~bgap.sim.vector.VectorHighway`) take the same highway-env style config
+dictionary. This module owns it: the typed schemas of the ``env`` and ``reward`` config
+groups, the translation of a bgap config into that dictionary (:func:`env_config`), its
+defaults (:func:`default_config`: highway-env's ``highway-v0`` defaults overlaid with bgap's
+schema defaults and Table I's drivers) and the checks both backends run on it
+(:func:`check_config`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
+
+from highway_env.envs.highway_env import HighwayEnv
+
+from bgap.behaviors import BehaviorConfig, paper_behavior
+from bgap.errors import ConfigError, check
+from bgap.presets import load_preset, preset_path
+from bgap.vocab import CLASSES, MIX_SAMPLING
+
+
+@dataclass
+class EnvConfig:
+    """Road, traffic density and timing (config group ``env``: ``sparse`` or ``dense``)."""
+
+    name: str = "sparse"
+    vehicles_count: int = 5
+    """Background vehicles n."""
+    observed_vehicles: int = 5
+    """Rows V of the observation, the ego's row included (highway-env's convention)."""
+    lanes_count: int = 4
+    duration: float = 60.0
+    """Episode length [s]."""
+    policy_frequency: int = 1
+    simulation_frequency: int = 15
+    vehicles_density: float = 1.0
+    ego_speeds: list[float] = field(default_factory=lambda: [10.0, 15.0, 20.0, 25.0, 30.0])
+    """Target speeds [m/s] the ego's FASTER/SLOWER meta-actions step through."""
+
+    def __post_init__(self) -> None:
+        check(self.vehicles_count >= 0, "env.vehicles_count", self.vehicles_count, "must be >= 0")
+        check(
+            self.observed_vehicles >= 1,
+            "env.observed_vehicles",
+            self.observed_vehicles,
+            "must be >= 1 (the ego's row)",
+        )
+        check(self.lanes_count >= 1, "env.lanes_count", self.lanes_count, "must be >= 1")
+        check(self.duration > 0, "env.duration", self.duration, "must be positive")
+        check(self.policy_frequency >= 1, "env.policy_frequency", self.policy_frequency, ">= 1")
+        check(
+            self.simulation_frequency % self.policy_frequency == 0,
+            "env.simulation_frequency",
+            self.simulation_frequency,
+            "must be a multiple of env.policy_frequency",
+        )
+        check(self.vehicles_density > 0, "env.vehicles_density", self.vehicles_density, "> 0")
+        check(
+            len(self.ego_speeds) >= 1 and min(self.ego_speeds) >= 0,
+            "env.ego_speeds",
+            self.ego_speeds,
+            "needs at least one non-negative speed",
+        )
+
+
+@dataclass
+class RewardConfig:
+    """Weights of the reward terms R = r_C + r_LC + r_RL + r_HS (config group ``reward``)."""
+
+    name: str = "highway"
+    collision: float = -1.0
+    lane_change: float = 0.0
+    right_lane: float = 0.1
+    high_speed: float = 0.4
+    speed_range: list[float] = field(default_factory=lambda: [20.0, 30.0])
+    """Forward speeds [m/s] mapped linearly to r_HS in [0, 1]."""
+    normalize: bool = True
+    """Map the summed reward to [0, 1] using the most negative and most positive weights."""
+
+    def __post_init__(self) -> None:
+        lo, hi = self.speed_range
+        check(
+            len(self.speed_range) == 2 and lo < hi,
+            "reward.speed_range",
+            self.speed_range,
+            "must be [low, high] with low < high",
+        )
+
+
+class Scenario(Protocol):
+    """What :func:`env_config` reads: any bgap command config has these fields."""
+
+    env: EnvConfig
+    reward: RewardConfig
+    behavior: BehaviorConfig
+    mix: float
+    radius: float
+
+
+# The paper's observation: presence, x, y, vx, vy of V vehicles (the ego's row first),
+# relative to the ego, normalised; vehicles behind are seen too.
+OBSERVATION: dict[str, Any] = {
+    "type": "Kinematics",
+    "features": ["presence", "x", "y", "vx", "vy"],
+    "absolute": False,
+    "normalize": True,
+    "clip": True,
+    "see_behind": True,
+    "order": "sorted",
+}
+
+REWARD_TERMS = {
+    "collision_reward": "collision",
+    "lane_change_reward": "lane_change",
+    "right_lane_reward": "right_lane",
+    "high_speed_reward": "high_speed",
+}
+"""highway-env's name of each reward term -> its weight in :class:`RewardConfig`."""
+
+
+def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
+    """Translate a bgap config into the environment's config dictionary (both backends).
+
+    ``mix_sampling``: ``fixed`` keeps ``cfg.mix``; ``uniform`` or ``paper`` draw a new mix at
+    every reset (training across mixes)."""
+    e, r = cfg.env, cfg.reward
+    return {
+        "observation": {**OBSERVATION, "vehicles_count": e.observed_vehicles},
+        "action": {"type": "DiscreteMetaAction", "target_speeds": list(e.ego_speeds)},
+        "lanes_count": e.lanes_count,
+        "vehicles_count": e.vehicles_count,
+        "vehicles_density": e.vehicles_density,
+        "duration": e.duration,
+        "policy_frequency": e.policy_frequency,
+        "simulation_frequency": e.simulation_frequency,
+        **{key: getattr(r, weight) for key, weight in REWARD_TERMS.items()},
+        "reward_speed_range": list(r.speed_range),
+        "normalize_reward": r.normalize,
+        "mix": cfg.mix,
+        "mix_sampling": mix_sampling,
+        "perception_radius": cfg.radius,
+        "behavior": {
+            "name": cfg.behavior.name,
+            "conservative": asdict(cfg.behavior.conservative),
+            "aggressive": asdict(cfg.behavior.aggressive),
+        },
+    }
+
+
+@dataclass
+class _Defaults:
+    env: EnvConfig = field(default_factory=EnvConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    behavior: BehaviorConfig = field(default_factory=paper_behavior)
+    mix: float = 0.5
+    radius: float = 180.0
+
+
+def default_config() -> dict[str, Any]:
+    """highway-env's ``highway-v0`` defaults overlaid with bgap's: the schema defaults above
+    (sparse traffic, highway-env's reward weights) and Table I's drivers at mix 0.5."""
+    return {**HighwayEnv.default_config(), **env_config(_Defaults())}
+
+
+def full_config(config: dict[str, Any]) -> dict[str, Any]:
+    """:func:`default_config` updated with ``config`` (nested dicts merged one level deep, as
+    highway-env's ``configure`` does), checked with :func:`check_config`."""
+    full = default_config()
+    for key, value in config.items():
+        if isinstance(value, dict) and isinstance(full.get(key), dict):
+            full[key] = {**full[key], **value}
+        else:
+            full[key] = value
+    check_config(full)
+    return full
+
+
+def check_config(config: dict[str, Any]) -> None:
+    """The checks both backends run on their config dictionary; :class:`ConfigError` names
+    the key. (Composed bgap configs are checked earlier by their schemas; this guards the
+    dictionaries users pass to ``gym.make`` or ``VectorHighway`` directly.)"""
+    mix, radius = config["mix"], config["perception_radius"]
+    check(
+        isinstance(mix, (int, float)) and 0.0 <= float(mix) <= 1.0,
+        "mix",
+        mix,
+        "must lie in [0, 1], the fraction of aggressive vehicles (e.g. mix=0.6)",
+    )
+    check(
+        isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0,
+        "radius",
+        radius,
+        "must be a positive perception distance in metres (e.g. radius=90; the "
+        "environment's key: perception_radius)",
+    )
+    sampling = config.get("mix_sampling", "fixed")
+    check(sampling in MIX_SAMPLING, "mix_sampling", sampling, f"use one of {MIX_SAMPLING}")
+    unknown = set(config["behavior"]) - {"name", *CLASSES}
+    check(not unknown, "behavior", sorted(unknown), f"unknown classes; use {list(CLASSES)}")
+    n = config["vehicles_count"]
+    check(isinstance(n, int) and n >= 0, "vehicles_count", n, "must be an integer >= 0")
+    sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
+    check(
+        pol >= 1 and sim % pol == 0,
+        "simulation_frequency",
+        sim,
+        f"must be a multiple of policy_frequency ({pol})",
+    )
+
+
+def env_preset(name: str) -> EnvConfig:
+    """The ``env`` group's packaged preset ``name`` (``env/<name>.yaml``) as an EnvConfig."""
+    path = preset_path("env", name)
+    if not path.exists():
+        choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
+        raise ConfigError(f"density {name!r} has no preset env/{name}.yaml; use {choices}")
+    return load_preset(EnvConfig, path)

@@ -1,0 +1,58 @@
+"""The model's vocabulary: names, codes and constants every part of bgap shares.
+
+A leaf module: it imports nothing of bgap, so anything may import it. Road and vehicle
+constants are read from highway-env (the reference simulator), not restated, so the
+vectorised backend's kernels and the environment cannot disagree on them.
+"""
+
+from __future__ import annotations
+
+import inspect
+
+from highway_env.envs.common.action import DiscreteMetaAction
+from highway_env.road.lane import StraightLane
+from highway_env.road.road import RoadNetwork
+from highway_env.vehicle.behavior import IDMVehicle
+from highway_env.vehicle.controller import ControlledVehicle
+from highway_env.vehicle.kinematics import Vehicle
+
+# ---------------------------------------------------------------- driver classes
+EGO, CONSERVATIVE, AGGRESSIVE = "ego", "conservative", "aggressive"
+CLASSES = (CONSERVATIVE, AGGRESSIVE)
+"""Background driver classes, in the order of the behaviour presets."""
+LABEL_CODES = {EGO: 0, CONSERVATIVE: 1, AGGRESSIVE: 2}
+"""Integer code of each label in array layouts (vector backend state, recorded frames)."""
+LABEL_NAMES = {code: name for name, code in LABEL_CODES.items()}
+COLORS = {EGO: (50, 200, 0), AGGRESSIVE: (220, 40, 40), CONSERVATIVE: (40, 90, 220)}
+"""Paper figure colours (RGB): ego green, aggressive red, conservative blue."""
+
+# ---------------------------------------------------------------- ego actions
+ACTIONS = {name: index for index, name in DiscreteMetaAction.ACTIONS_ALL.items()}
+LANE_LEFT, IDLE, LANE_RIGHT = ACTIONS["LANE_LEFT"], ACTIONS["IDLE"], ACTIONS["LANE_RIGHT"]
+FASTER, SLOWER = ACTIONS["FASTER"], ACTIONS["SLOWER"]
+N_ACTIONS = len(ACTIONS)
+
+# ---------------------------------------------------------------- experiment names
+POLICIES = ("behavior_rich", "default")
+"""Trained policy families: trained in behaviour-rich traffic, or in stock traffic."""
+BASELINES = ("idle", "random", "left")
+"""Scripted ego policies evaluated beside trained ones."""
+BACKENDS = ("highway", "vector")
+"""Simulators: highway-env (the reference) and bgap's vectorised port."""
+MIX_SAMPLING = ("fixed", "uniform", "paper")
+"""Training mix per episode: the configured mix, uniform in [0, 1], or a paper mix."""
+PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
+"""Aggressive fractions of the paper's evaluation grid."""
+
+# ---------------------------------------------------------------- road and vehicles
+LANE_WIDTH = float(StraightLane.DEFAULT_WIDTH)
+VEHICLE_LENGTH, VEHICLE_WIDTH = float(Vehicle.LENGTH), float(Vehicle.WIDTH)
+EGO_MAX_SPEED, MIN_SPEED = float(Vehicle.MAX_SPEED), float(Vehicle.MIN_SPEED)
+_ROAD = inspect.signature(RoadNetwork.straight_road_network).parameters
+SPEED_LIMIT = float(_ROAD["speed_limit"].default)
+"""Speed limit of highway-env's straight road [m/s] (the lane speed limit of highway-v0)."""
+ROAD_LENGTH = float(_ROAD["length"].default)
+TAU_ACC, TAU_HEADING = ControlledVehicle.TAU_ACC, ControlledVehicle.TAU_HEADING
+TAU_LATERAL = ControlledVehicle.TAU_LATERAL
+MAX_STEERING = ControlledVehicle.MAX_STEERING_ANGLE
+LANE_CHANGE_DELAY = IDMVehicle.LANE_CHANGE_DELAY
