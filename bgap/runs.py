@@ -1,4 +1,11 @@
-"""Run folders: every run saves its resolved config and the command that made it."""
+"""Run folders: every run saves its resolved config and the command that made it.
+
+Written by hand rather than by Hydra's output handling (``hydra.run.dir`` and ``.hydra/``,
+switched off in the packaged configs): a training's run folder is named from the validated
+config itself (a hash of everything that changes what is learnt), which Hydra's
+interpolations cannot compute before the config exists, and one command writes several run
+folders (``bgap.run``: both policies and the results).
+"""
 
 from __future__ import annotations
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.vector import AutoresetMode, SyncVectorEnv
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
 from bgap.errors import ConfigError, check
 from bgap.sim.vector import RECORD_FIELDS, VectorHighway
@@ -39,6 +39,7 @@ def make_vector_env(
     *,
     record: bool = False,
     render: bool = False,
+    asynchronous: bool = False,
 ) -> gym.vector.VectorEnv:
     """``num_envs`` copies of the behaviour-rich highway on ``backend``.
 
@@ -47,6 +48,9 @@ def make_vector_env(
         record: report every simulation frame in ``info`` (trajectory recording).
         render: also put highway-env's pictures of every third frame in
             ``info["images"]`` (highway-env only: the vector backend draws nothing).
+        asynchronous: highway-env's copies in subprocesses (gymnasium's ``AsyncVectorEnv``),
+            one per core, instead of one after the other in this process. The vector backend
+            is batched and threaded already and ignores it.
     """
     check(backend in BACKENDS, "backend", backend, f"use one of {BACKENDS}")
     if backend == "vector":
@@ -56,7 +60,8 @@ def make_vector_env(
             )
         return VectorHighway(config, num_envs, record=record)
     make = partial(_highway_env, config, record=record, render=render)
-    return SameStepInfo(SyncVectorEnv([make] * num_envs, autoreset_mode=AutoresetMode.SAME_STEP))
+    vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
+    return SameStepInfo(vector([make] * num_envs, autoreset_mode=AutoresetMode.SAME_STEP))
 
 
 def _highway_env(config: dict[str, Any], record: bool, render: bool) -> gym.Env:

@@ -26,19 +26,18 @@ from typing import Any
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
-from stable_baselines3.common.env_util import make_vec_env
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+from stable_baselines3.common.vec_env import VecMonitor
 
 from bgap.agents.dqn import DQN
 from bgap.agents.monitor import SB3Monitor, TrainingMonitor
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.behaviors import BehaviorConfig
 from bgap.config import ExperimentConfig, app, load
-from bgap.envs import ENV_ID
 from bgap.runs import save_run_metadata
 from bgap.scenario import env_config
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.vector import VectorHighway
+from bgap.simulators import make_vector_env
 
 
 def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
@@ -80,31 +79,20 @@ def run_dir_for(cfg: ExperimentConfig) -> Path:
     return Path(cfg.run_dir) if cfg.run_dir else Path(cfg.root) / "runs" / run_name(cfg)
 
 
-def make_training_env(cfg: ExperimentConfig, n_envs: int, seed: int):
-    """``n_envs`` training environments as an SB3 VecEnv: one batched
-    :class:`~bgap.sim.vector.VectorHighway` for ``backend=vector``, subprocesses of
-    highway-env otherwise. Both draw the episode's mix themselves (``mix_sampling``)."""
+def make_training_env(cfg: ExperimentConfig, n_envs: int, seed: int) -> VecMonitor:
+    """``n_envs`` training environments (:func:`bgap.simulators.make_vector_env`: one batched
+    VectorHighway, or highway-env copies in subprocesses) as an SB3 VecEnv; env k is seeded
+    ``seed + k``. Both backends draw each episode's mix themselves (``mix_sampling``)."""
     config = env_config(cfg, cfg.mix_sampling)
-    if cfg.backend == "vector":
-        venv = SB3VecEnv(VectorHighway(config, n_envs))
-        venv.seed(seed)
-        return VecMonitor(venv)
-    vec_cls = SubprocVecEnv if n_envs > 1 else DummyVecEnv
-    kwargs = {"start_method": "fork"} if n_envs > 1 else {}
-    return make_vec_env(
-        ENV_ID,
-        n_envs=n_envs,
-        seed=seed,
-        env_kwargs={"config": config},
-        vec_env_cls=vec_cls,
-        vec_env_kwargs=kwargs,
-    )
+    venv = SB3VecEnv(make_vector_env(config, n_envs, cfg.backend, asynchronous=n_envs > 1))
+    venv.seed(seed)
+    return VecMonitor(venv)
 
 
-def _vector_highway(env: Any) -> VectorHighway | None:
+def _vector_highway(env: VecMonitor) -> VectorHighway | None:
     """The VectorHighway inside a training VecEnv (None on highway-env)."""
-    inner = getattr(env, "venv", None)
-    return getattr(inner, "venv", None) if isinstance(inner, SB3VecEnv) else None
+    inner = env.venv.venv
+    return inner if isinstance(inner, VectorHighway) else None
 
 
 def resume_state(model: DQN, env: Any) -> dict[str, Any]:

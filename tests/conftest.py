@@ -15,11 +15,25 @@ def make_cfg(*overrides: str) -> SimulateConfig:
 
 @pytest.fixture(scope="session")
 def sparse_mixed_recording():
-    """20 seeded 60 s sparse episodes, paper behaviours, half aggressive, idle ego."""
+    """8 seeded 60 s sparse episodes on highway-env, paper behaviours, half aggressive, idle
+    ego (the class differences asserted on it are many standard errors wide)."""
     from bgap.simulate import simulate
 
     cfg = make_cfg("env=sparse", "mix=0.5", "behavior=paper", "seed=100")
-    return simulate(cfg, episodes=20, progress=False)
+    return simulate(cfg, episodes=8, progress=False)
+
+
+def warm_compiled_kernels() -> None:
+    """Compile (or load from numba's cache) the simulator's and CMetric's kernels in this
+    checkout, so that a copy of the package made afterwards with its ``__pycache__`` (same
+    sources, same modification times) loads them instead of compiling them again."""
+    from bgap.cmetric import score_trajectories
+    from bgap.rollout import rollout
+    from bgap.scenario import env_config
+
+    cfg = make_cfg("env=sparse", "env.duration=2")
+    table = rollout(env_config(cfg), "random", [0], "vector", record=True).trajectories
+    score_trajectories(table)
 
 
 def lane_changes(table) -> np.ndarray:

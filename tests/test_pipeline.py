@@ -26,8 +26,11 @@ def _run(args: list[str], cwd: Path) -> str:
 
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory) -> Path:
+    from tests.conftest import warm_compiled_kernels
+
     repo = tmp_path_factory.mktemp("study")
-    shutil.copytree(ROOT / "bgap", repo / "bgap", ignore=shutil.ignore_patterns("__pycache__"))
+    warm_compiled_kernels()  # the copy below keeps numba's cache: no compiling per stage
+    shutil.copytree(ROOT / "bgap", repo / "bgap")
     for name in ("dvc.yaml", "params.yaml", ".dvcignore"):
         shutil.copy(ROOT / name, repo / name)
     (repo / "bgap/conf/behavior/calibrated.yaml").unlink(missing_ok=True)  # the stage makes it

@@ -1,18 +1,20 @@
-"""Stable-Baselines3 adapter: a :class:`VectorHighway` as an SB3 ``VecEnv``.
+"""Stable-Baselines3 adapter: a bgap vector environment as an SB3 ``VecEnv``.
 
-SB3 expects a list of per-env ``info`` dicts, same-step auto-reset with the last
-observation in ``info["terminal_observation"]``, and ``TimeLimit.truncated`` on time-outs;
-this is all the adapter adds. Wrap it in ``VecMonitor`` for SB3's episode statistics.
+Takes any vector environment that follows the conventions of :mod:`bgap.simulators`
+(:class:`~bgap.sim.vector.VectorHighway`, or highway-env through ``make_vector_env``): info
+as a dict of arrays, same-step auto-reset with ``info["final_obs"]``. SB3 expects a list of
+per-env ``info`` dicts, the last observation in ``info["terminal_observation"]``, and
+``TimeLimit.truncated`` on time-outs; this is all the adapter adds. Wrap it in
+``VecMonitor`` for SB3's episode statistics.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv
-
-from bgap.sim.vector import VectorHighway
 
 # The per-env info keys bgap's training and evaluation read.
 INFO_KEYS = (
@@ -27,7 +29,7 @@ INFO_KEYS = (
 
 
 class SB3VecEnv(VecEnv):
-    def __init__(self, venv: VectorHighway) -> None:
+    def __init__(self, venv: gym.vector.VectorEnv) -> None:
         self.venv = venv
         self.render_mode = None
         super().__init__(venv.num_envs, venv.single_observation_space, venv.single_action_space)
@@ -45,7 +47,7 @@ class SB3VecEnv(VecEnv):
     def step_wait(self):
         obs, rewards, terminated, truncated, info = self.venv.step(self._actions)
         dones = terminated | truncated
-        columns = {k: info[k].tolist() for k in INFO_KEYS}
+        columns = {k: np.asarray(info[k]).tolist() for k in INFO_KEYS}
         infos: list[dict[str, Any]] = [
             {k: columns[k][b] for k in INFO_KEYS} for b in range(self.num_envs)
         ]
