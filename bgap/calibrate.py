@@ -30,7 +30,6 @@ from omegaconf import DictConfig
 
 from bgap.behaviors import BehaviorConfig, DriverParams, paper_behavior
 from bgap.config import CalibrateAppConfig, app, load
-from bgap.errors import ConfigError
 from bgap.presets import selection_hint, write_preset
 from bgap.rollout import rollout
 from bgap.scenario import env_config, env_preset
@@ -298,16 +297,17 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
     return write_outputs(cfg, studies, behavior)
 
 
-@app("calibrate")
+@app(
+    "calibrate",
+    "bgap.calibrate",
+    "every finished trial is kept in the Optuna study; rerun the same command to continue",
+)
 def main(dcfg: DictConfig) -> None:
     from bgap.runs import save_run_metadata
 
     cfg: CalibrateAppConfig = load(dcfg)
     save_run_metadata(report_dir(cfg), dcfg)
-    try:
-        summary = calibrate(cfg)
-    except ConfigError as err:
-        raise SystemExit(f"bgap: configuration error: {err}") from None
+    summary = calibrate(cfg)
     print(json.dumps(summary, indent=2))
     hint = selection_hint("behavior", preset_file(cfg))
     print(f"preset: {preset_file(cfg)} (use: {hint}); report: {report_dir(cfg)}")

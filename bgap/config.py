@@ -14,6 +14,7 @@ first thing in every entry point, before any work starts.
 from __future__ import annotations
 
 import functools
+import sys
 import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -27,7 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 from bgap.agents.config import AgentConfig
 from bgap.behaviors import BehaviorConfig, DriverParams
 from bgap.cmetric.params import CMetricConfig
-from bgap.errors import ConfigError, check
+from bgap.errors import check
 from bgap.presets import CONF_DIR
 from bgap.scenario import EnvConfig, RewardConfig, check_config, env_config
 from bgap.vocab import BACKENDS, BASELINES, CLASSES, MIX_SAMPLING, POLICIES
@@ -96,9 +97,13 @@ class CMetricAppConfig:
     fps: float = 15.0
     """Frame rate used when the table has frames but no times."""
     out: Optional[str] = None
-    """Scores file (.csv or .parquet); default: next to the input, ``<stem>_cmetric.csv``."""
+    """Scores file (.csv or .parquet) or an existing folder (``<folder>/<stem>_cmetric.csv``);
+    default: next to the input, ``<stem>_cmetric.csv``."""
     plot_vehicles: list[int] = field(default_factory=list)
     """Vehicle ids to plot (first episode); default: the two highest and two lowest scores."""
+
+    def __post_init__(self) -> None:
+        check(self.fps > 0, "fps", self.fps, "must be a positive frame rate [Hz] (e.g. fps=15)")
 
 
 @dataclass
@@ -399,27 +404,40 @@ def compose(config_name: str = "simulate", overrides: list[str] | None = None) -
 
 
 def load(cfg: DictConfig) -> Any:
-    """:func:`validate` for command-line entry points: a bad value ends the program with a
-    one-line message instead of a traceback."""
-    try:
-        return validate(cfg)
-    except ConfigError as err:
-        raise SystemExit(f"bgap: configuration error: {err}") from None
+    """:func:`validate` for command-line entry points; a bad value raises
+    :class:`ConfigError`, which :func:`app` reports in one line."""
+    return validate(cfg)
 
 
-def app(config_name: str) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
-    """``@app("train")``: a command's ``main`` as a Hydra app over the packaged config
-    ``<config_name>.yaml``, with the schemas registered first (not as an import side effect)."""
+def app(
+    config_name: str, prog: str, on_interrupt: str = "nothing was saved; rerun the command"
+) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
+    """``@app("train", "bgap.train")``: a command's ``main(dcfg)`` as a command-line program
+    over the packaged config ``<config_name>.yaml``, with the schemas registered first (not
+    as an import side effect).
+
+    Plain ``key=value`` overrides are composed here, so that every known mistake ends in one
+    line and exit status 2 (:mod:`bgap.cli`); options (``--help``, ``--cfg job``, ``-m`` for
+    multirun) and ``hydra.*`` overrides go to Hydra's own command line.
+    """
+    from bgap.cli import run
 
     def decorator(task: Callable[[DictConfig], Any]) -> Callable[[], Any]:
+        @functools.wraps(task)
+        def reported(dcfg: DictConfig) -> Any:  # Hydra's own reporting would print a trace
+            return run(prog, lambda: task(dcfg), on_interrupt)
+
         hydra_task = hydra.main(version_base="1.3", config_path=CONF_DIR, config_name=config_name)(
-            task
+            reported
         )
 
         @functools.wraps(task)
         def main() -> Any:
             register_configs()
-            return hydra_task()
+            args = sys.argv[1:]
+            if any(a.startswith(("-", "hydra.", "hydra/", "+hydra", "~hydra")) for a in args):
+                return hydra_task()
+            return run(prog, lambda: task(compose(config_name, args)), on_interrupt)
 
         return main
 

@@ -17,3 +17,7 @@ def check(ok: bool, key: str, value: Any, rule: str) -> None:
     """Raise :class:`ConfigError` naming ``key``, its ``value`` and the ``rule`` it breaks."""
     if not ok:
         raise ConfigError(f"{key}={value!r} is invalid: {rule}")
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C, with what the interrupted command saved and how to continue it."""

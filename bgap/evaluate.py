@@ -25,6 +25,7 @@ from omegaconf import DictConfig
 from tqdm import tqdm
 
 from bgap.config import ExperimentConfig, app, load
+from bgap.errors import ConfigError
 from bgap.rollout import as_policy, rollout
 from bgap.scenario import env_config, env_preset
 from bgap.stats import t_interval, wilson_interval
@@ -66,6 +67,28 @@ def _evaluate_chunk(
     return [{**key, **row} for row in episodes.to_dict(orient="records")]
 
 
+def _check_densities(policies: dict[str, Any], cells: list[Cell], cfg: ExperimentConfig) -> None:
+    """A model sees a fixed number of vehicles: each must have a cell of its density."""
+    rows = {c.density: cell_env_config(cfg, c)["observation"]["vehicles_count"] for c in cells}
+    for name, spec in policies.items():
+        needs = as_policy(spec)[1]
+        if needs is not None and needs not in rows.values():
+            raise ConfigError(
+                f"policy {name} observes {needs} vehicles (density "
+                f"{_density_of(needs)}), but the grid's densities {sorted(rows)} have "
+                f"{sorted(set(rows.values()))}; evaluate it at its own density (env=... or "
+                "grid.densities=[...])"
+            )
+
+
+def _density_of(rows: int) -> str:
+    from bgap.presets import CONF_DIR
+
+    names = sorted(p.stem for p in (Path(CONF_DIR) / "env").glob("*.yaml"))
+    found = [n for n in names if env_preset(n).observed_vehicles == rows]
+    return found[0] if found else "unknown"
+
+
 def evaluate(
     cfg: ExperimentConfig,
     policies: dict[str, str],
@@ -83,6 +106,7 @@ def evaluate(
     """
     cells = list(cells or grid_cells(cfg))
     episodes = episodes or cfg.profile.eval_episodes
+    _check_densities(policies, cells, cfg)
     seeds = [cfg.eval_seed + k for k in range(episodes)]
     if cfg.backend == "vector":  # one batch per cell and policy, compiled threads in-process
         chunk, workers = episodes, 1
@@ -214,7 +238,7 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     return specs
 
 
-@app("evaluate")
+@app("evaluate", "bgap.evaluate", "no results were written; rerun the command")
 def main(dcfg: DictConfig) -> None:
     from bgap.runs import save_run_metadata
 

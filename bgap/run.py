@@ -12,23 +12,28 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from bgap.config import ExperimentConfig, app, load
 from bgap.evaluate import evaluate, format_table, plot_comparison, summarize, write_results
-from bgap.runs import save_run_metadata
+from bgap.runs import VOLATILE, digest, save_run_metadata
 from bgap.train import run_dir_for, train, training_config
 from bgap.vocab import POLICIES
 
 
 def results_dir(cfg: ExperimentConfig) -> Path:
+    """``out``, or a folder under ``<root>/results`` named by the main settings and a hash of
+    all of them (reward, behaviour, backend, budget, ...), so runs of other settings never
+    share a folder."""
     if cfg.out:
         return Path(cfg.out)
+    settings = {k: v for k, v in asdict(cfg).items() if k not in VOLATILE}
     name = (
         f"{cfg.env.name}-mix{cfg.mix:g}-r{cfg.radius:g}-{cfg.grid.name}-{cfg.profile.name}"
-        f"-s{cfg.seed}"
+        f"-s{cfg.seed}-{digest(settings)}"
     )
     return Path(cfg.root) / "results" / name
 
@@ -58,7 +63,8 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
         with _exclusive(run_dir):
             cached = (run_dir / "model.zip").exists()
             print(f"[{policy}] {'reusing' if cached else 'training'} {run_dir}")
-            models[policy] = str(train(pcfg) / "model.zip")
+            # resume=true: a training this command started and was interrupted continues
+            models[policy] = str(train(replace(pcfg, resume=True)) / "model.zip")
     out = results_dir(cfg)
     if dcfg is not None:
         save_run_metadata(out, dcfg)
@@ -73,7 +79,11 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     return out
 
 
-@app("run")
+@app(
+    "run",
+    "bgap.run",
+    "finished trainings are kept and reused by a rerun of the same command",
+)
 def main(dcfg: DictConfig) -> None:
     run(load(dcfg), dcfg)
 

@@ -9,6 +9,8 @@ folders (``bgap.run``: both policies and the results).
 
 from __future__ import annotations
 
+import hashlib
+import json
 import shlex
 import sys
 from pathlib import Path
@@ -16,13 +18,57 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from bgap.errors import ConfigError
 
-def save_run_metadata(out_dir: str | Path, cfg: Any) -> Path:
-    """Write ``config.yaml`` (resolved) and ``command.txt`` into ``out_dir``."""
+VOLATILE = ("resume", "workers", "root", "out", "run_dir")
+"""Settings that do not change what a folder holds (where it is, how fast it is made)."""
+
+
+def digest(values: Any) -> str:
+    """A short, stable hash of JSON-able ``values`` (folder and study names)."""
+    return hashlib.sha1(json.dumps(values, sort_keys=True, default=str).encode()).hexdigest()[:8]
+
+
+def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(tree, dict):
+        out: dict[str, Any] = {}
+        for key, value in tree.items():
+            out.update(_flat(value, f"{prefix}{key}."))
+        return out
+    return {prefix[:-1]: tree}
+
+
+def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATILE) -> list[str]:
+    """Dotted keys whose values differ between two config trees, ``ignore``d ones aside."""
+    a, b = _flat(stored), _flat(current)
+    return sorted(k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore)
+
+
+def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = VOLATILE) -> Path:
+    """Write ``config.yaml`` (resolved) and ``command.txt`` into ``out_dir``.
+
+    A folder that already holds a ``config.yaml`` of other settings is refused with a
+    :class:`ConfigError` naming the differing keys: a rerun resumes or repeats the same
+    work, it never overwrites or mixes in a result of other settings."""
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     conf = cfg if OmegaConf.is_config(cfg) else OmegaConf.structured(cfg)
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(conf, resolve=True))
+    current = OmegaConf.to_container(conf, resolve=True)
+    stored_path = out / "config.yaml"
+    if stored_path.exists():
+        stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
+        keys = differing_keys(stored, current, ignore)
+        if keys:
+            shown = ", ".join(
+                f"{k} ({_flat(stored).get(k)!r} there, {_flat(current).get(k)!r} now)"
+                for k in keys[:4]
+            )
+            more = f" and {len(keys) - 4} more" if len(keys) > 4 else ""
+            raise ConfigError(
+                f"{out} holds a result of other settings: {shown}{more}; choose another "
+                "output folder (or delete that one)"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    stored_path.write_text(OmegaConf.to_yaml(conf, resolve=True))
     # orig_argv keeps "-m bgap.x"; argv[0] would be the module's file path.
     command = " ".join(shlex.quote(a) for a in ["python", *sys.orig_argv[1:]])
     (out / "command.txt").write_text(command + "\n")

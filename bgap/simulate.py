@@ -57,7 +57,7 @@ def simulate(
     return result.trajectories
 
 
-@app("simulate")
+@app("simulate", "bgap.simulate", "nothing was written; rerun the command")
 def main(dcfg: DictConfig) -> None:
     cfg: SimulateConfig = load(dcfg)
     out = save_run_metadata(cfg.out, dcfg)

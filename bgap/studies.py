@@ -7,6 +7,7 @@ processes. Rerunning a command reopens the same study, so finished trials are ke
 
 from __future__ import annotations
 
+import logging
 import time
 import warnings
 from pathlib import Path
@@ -17,6 +18,16 @@ from bgap.errors import ConfigError
 
 # Seconds between a running trial's heartbeats, and without one before it counts as dead.
 HEARTBEAT = (30, 90)
+
+
+def _not_an_interruption(record: logging.LogRecord) -> bool:
+    """Optuna logs a trial stopped by Ctrl-C as a failure, with its traceback; the command
+    reports the interruption in one line instead (:mod:`bgap.cli`)."""
+    interrupted = record.exc_info and issubclass(record.exc_info[0], KeyboardInterrupt)
+    return not (interrupted or "KeyboardInterrupt" in record.getMessage())
+
+
+logging.getLogger("optuna.study._optimize").addFilter(_not_an_interruption)
 
 
 def sqlite_url(folder: str | Path) -> str:

@@ -34,6 +34,7 @@ from bgap.config import ExperimentConfig, SweepConfig, app, compose, load, valid
 from bgap.errors import ConfigError
 from bgap.presets import SWEEPS_DIR, selection_hint, write_preset
 from bgap.rollout import greedy, rollout
+from bgap.runs import VOLATILE, digest
 from bgap.scenario import env_config
 from bgap.studies import open_storage, sqlite_url
 
@@ -73,8 +74,16 @@ def suggest(trial: optuna.Trial, space: dict[str, dict[str, Any]]) -> dict[str, 
     return values
 
 
+STUDY_VOLATILE = (*VOLATILE, "trials", "storage", "study", "write_preset", "preset")
+"""Sweep settings that do not change a trial's value (the trial budget may grow on a rerun)."""
+
+
 def study_name(cfg: SweepConfig) -> str:
-    return cfg.study or f"{cfg.sweep}-{cfg.mode}-{cfg.env.name}"
+    """``study``, or the search, mode and density with a hash of every setting that changes a
+    trial's value (budget, traffic, reward, evaluation, ...): sweeps of other settings never
+    pool their trials."""
+    settings = {k: v for k, v in asdict(cfg).items() if k not in STUDY_VOLATILE}
+    return cfg.study or f"{cfg.sweep}-{cfg.mode}-{cfg.env.name}-{digest(settings)}"
 
 
 class PruneCallback(BaseCallback):
@@ -261,13 +270,14 @@ def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> Path:
     return write_preset(replace(getattr(tcfg, group), name=path.stem), group, path, note)
 
 
-@app("sweep")
+@app(
+    "sweep",
+    "bgap.sweep",
+    "every finished trial is kept in the Optuna study; rerun the same command to continue",
+)
 def main(dcfg: DictConfig) -> None:
     cfg: SweepConfig = load(dcfg)
-    try:
-        study = sweep(cfg)
-    except ConfigError as err:
-        raise SystemExit(f"bgap: configuration error: {err}") from None
+    study = sweep(cfg)
     paths = write_outputs(study, cfg)
     chosen = chosen_trial(study, cfg)
     print(

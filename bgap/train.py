@@ -15,8 +15,6 @@ environments restart on fresh seeds.
 
 from __future__ import annotations
 
-import hashlib
-import json
 import pickle
 from collections.abc import Sequence
 from dataclasses import asdict, replace
@@ -33,11 +31,16 @@ from bgap.agents.monitor import SB3Monitor, TrainingMonitor
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.behaviors import BehaviorConfig
 from bgap.config import ExperimentConfig, app, load
-from bgap.runs import save_run_metadata
+from bgap.errors import ConfigError, Interrupted
+from bgap.runs import VOLATILE, digest, save_run_metadata
 from bgap.scenario import env_config
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.vector import VectorHighway
 from bgap.simulators import make_vector_env
+
+NOT_LEARNT = (*VOLATILE, "models", "baselines", "grid", "eval_seed", "out")
+"""Settings of a training's config that do not change what it learns (run folder checks).
+(``eval_seed`` only moves the periodic evaluations' episodes.)"""
 
 
 def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
@@ -49,8 +52,8 @@ def training_config(cfg: ExperimentConfig, policy: str | None = None) -> Experim
     return cfg
 
 
-def run_name(cfg: ExperimentConfig) -> str:
-    """Readable prefix plus a hash of everything that changes what is learnt."""
+def training_identity(cfg: ExperimentConfig) -> dict[str, Any]:
+    """Everything that changes what a training learns."""
     keys = {
         k: asdict(cfg)[k]
         for k in (
@@ -69,10 +72,15 @@ def run_name(cfg: ExperimentConfig) -> str:
     keys["profile"] = {
         k: v for k, v in asdict(cfg.profile).items() if k not in ("eval_episodes", "name")
     }
-    digest = hashlib.sha1(json.dumps(keys, sort_keys=True).encode()).hexdigest()[:8]
+    return keys
+
+
+def run_name(cfg: ExperimentConfig) -> str:
+    """Readable prefix plus a hash of everything that changes what is learnt."""
     mix = f"mix{cfg.mix:g}" if cfg.mix_sampling == "fixed" else f"mix-{cfg.mix_sampling}"
     mix = mix if cfg.policy == "behavior_rich" else "stock"
-    return f"{cfg.env.name}-{cfg.policy}-{mix}-{cfg.profile.name}-s{cfg.seed}-{digest}"
+    name = f"{cfg.env.name}-{cfg.policy}-{mix}-{cfg.profile.name}-s{cfg.seed}"
+    return f"{name}-{digest(training_identity(cfg))}"
 
 
 def run_dir_for(cfg: ExperimentConfig) -> Path:
@@ -146,11 +154,16 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
     run_dir = run_dir_for(cfg)
     ckpt = run_dir / "checkpoints"
     resuming = cfg.resume and (ckpt / "state.pkl").exists()
+    # The config it trains under (for policy=default the stock traffic, not the composed
+    # behaviour preset); a folder of another training is refused, naming what differs.
+    save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT)
     if (run_dir / "model.zip").exists() and not resuming:
-        return run_dir  # finished already
-    # The config it trains under: for policy=default that is the stock traffic, not the
-    # composed behaviour preset.
-    save_run_metadata(run_dir, OmegaConf.structured(cfg))
+        return run_dir  # finished already, with these settings
+    if (ckpt / "state.pkl").exists() and not cfg.resume:
+        raise ConfigError(
+            f"{run_dir} holds an unfinished training: resume=true continues it (or choose "
+            "another run_dir)"
+        )
     torch.set_num_threads(1)  # small MLP: threads cost more than they give; keeps runs exact
     env = make_training_env(cfg, cfg.profile.n_envs, cfg.seed)
     p = cfg.profile
@@ -202,11 +215,10 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
     except KeyboardInterrupt:
         saved = callback.saved_at
         where = f"the checkpoint of step {saved} is in {ckpt}" if saved else "no checkpoint yet"
-        print(
-            f"\ninterrupted at step {model.num_timesteps}: {where}; continue with: "
-            f"python -m bgap.train resume=true run_dir={run_dir} (and the same overrides)"
-        )
-        raise
+        raise Interrupted(
+            f"training stopped at step {model.num_timesteps}, {where}; continue with: python -m "
+            f"bgap.train resume=true run_dir={run_dir} (and the same overrides)"
+        ) from None
     finally:
         env.close()
     callback.checkpoint()
@@ -214,7 +226,7 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
     return run_dir
 
 
-@app("train")
+@app("train", "bgap.train")
 def main(dcfg: DictConfig) -> None:
     cfg: ExperimentConfig = load(dcfg)
     run_dir = train(cfg)

@@ -18,6 +18,22 @@ def _run(args: list[str], cwd: Path, env: dict) -> str:
     return done.stdout + done.stderr
 
 
+def _reuse_compiled_kernels(site: Path) -> None:
+    """numba's cache of this checkout, for the installed copy: its index checks a source's
+    size and modification time, so the copies get the originals' times (the wheel does not
+    keep them). Only a shortcut: without it the installed copy compiles its kernels itself."""
+    from tests.conftest import warm_compiled_kernels
+
+    warm_compiled_kernels()
+    for source in (ROOT / "bgap").rglob("*.py"):
+        copy = site / source.relative_to(ROOT)
+        os.utime(copy, ns=(source.stat().st_atime_ns, source.stat().st_mtime_ns))
+        cache = source.parent / "__pycache__"
+        for index in cache.glob(f"{source.stem}.*.nb[ic]"):
+            (copy.parent / "__pycache__").mkdir(exist_ok=True)
+            shutil.copy2(index, copy.parent / "__pycache__" / index.name)
+
+
 def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(tmp_path):
     env = {**os.environ, "PYTHONPATH": ""}
     source = tmp_path / "source"  # setuptools builds in the source folder: use a copy
@@ -46,6 +62,7 @@ def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(t
     assert "bgap/sweeps/reward.yaml" in names
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
+    _reuse_compiled_kernels(site)
     work = tmp_path / "elsewhere"
     work.mkdir()
     env["PYTHONPATH"] = str(site)  # ahead of the editable install of this checkout

@@ -245,7 +245,7 @@ def test_resume_continues_from_the_checkpoint_on_highway_env(tmp_path, monkeypat
 def test_same_seed_reproduces_training_and_evaluation(tmp_path, backend):
     from bgap.train import train
 
-    cfg = _short(tmp_path, f"backend={backend}", "workers=1")
+    cfg = _short(tmp_path, f"backend={backend}", "workers=1", "profile.train_steps=120")
     a = train(replace(cfg, run_dir=str(tmp_path / "a")), progress=False)
     b = train(replace(cfg, run_dir=str(tmp_path / "b")), progress=False)
     cell = [Cell(0.5, "sparse", 180.0)]

@@ -17,6 +17,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from bgap.config import CMetricAppConfig, app, load
+from bgap.errors import ConfigError
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -50,21 +51,18 @@ def plot_centrality(result, vehicle_ids, path: Path) -> None:
     plt.close(fig)
 
 
-def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> int:
-    """Score ``cfg.input`` and write the scores, windows, plot and config; the exit status."""
-    from bgap.cmetric import TrajectoryError, score_trajectories
+def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
+    """Score ``cfg.input`` and write the scores, windows, plot and config."""
+    from bgap.cmetric import score_trajectories
     from bgap.cmetric.score import label_auc
 
     if not cfg.input:
-        print(f"bgap.cmetric: no trajectory table given\n{USAGE}", file=sys.stderr)
-        return 2
+        raise ConfigError(f"input=None: give the trajectory table to score ({USAGE})")
     source = Path(cfg.input)
-    try:
-        result = score_trajectories(source, cfg.cmetric, fps=cfg.fps, progress=True)
-    except TrajectoryError as err:
-        print(f"bgap.cmetric: {err}", file=sys.stderr)
-        return 1
+    result = score_trajectories(source, cfg.cmetric, fps=cfg.fps, progress=True)
     out = Path(cfg.out) if cfg.out else source.with_name(f"{source.stem}_cmetric.csv")
+    if out.is_dir() or (cfg.out or "").endswith("/"):
+        out = out / f"{source.stem}_cmetric.csv"
     out.parent.mkdir(parents=True, exist_ok=True)
     stem = out.with_suffix("")
     if out.suffix == ".parquet":
@@ -87,14 +85,11 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> int:
             print(f"ROC AUC (aggressive vs conservative): {label_auc(vehicles):.3f}")
         except ValueError:
             pass
-    return 0
 
 
-@app("cmetric_app")
+@app("cmetric_app", "bgap.cmetric", "nothing was written; rerun the command")
 def _hydra_main(dcfg: DictConfig) -> None:
-    status = score(load(dcfg), dcfg)
-    if status:
-        sys.exit(status)
+    score(load(dcfg), dcfg)
 
 
 def main() -> None:

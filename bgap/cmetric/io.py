@@ -7,7 +7,8 @@ A trajectory table is tidy: one row per vehicle and frame. Columns (aliases in b
   times when absent, times from frames at ``fps`` when absent;
 - ``x``, ``y``: position [m];
 - optional ``vx``, ``vy`` [m/s]: finite differences of position per vehicle when absent;
-- optional ``episode`` [``scene``]: independent scenes (graphs never join two scenes);
+- optional ``episode`` [``scene``]: independent scenes (graphs never join two scenes); a
+  table with both columns is read by ``episode`` (``scene`` is then ignored);
 - optional ``label``: ground-truth class, carried through to the scores.
 
 The Parquet written by :mod:`bgap.recorder` is read as is.
@@ -34,10 +35,16 @@ def read_table(source: str | Path | pd.DataFrame) -> pd.DataFrame:
     path = Path(source)
     if not path.exists():
         raise TrajectoryError(f"{path}: no such file")
-    if path.suffix.lower() in (".parquet", ".pq"):
-        return pd.read_parquet(path)
-    if path.suffix.lower() == ".csv":
-        return pd.read_csv(path)
+    if path.is_dir():
+        raise TrajectoryError(f"{path} is a folder; give a .csv or .parquet file")
+    try:
+        if path.suffix.lower() in (".parquet", ".pq"):
+            return pd.read_parquet(path)
+        if path.suffix.lower() == ".csv":
+            return pd.read_csv(path)
+    except pd.errors.EmptyDataError:
+        message = f"{path} is empty; a trajectory table needs a header and rows"
+        raise TrajectoryError(message) from None
     raise TrajectoryError(f"{path}: unknown format {path.suffix!r}; use .csv or .parquet")
 
 
@@ -51,7 +58,16 @@ def load_trajectories(source: str | Path | pd.DataFrame, fps: float = 15.0) -> p
     (episode, frame, vehicle) rows, or a time that does not increase with the frame.
     Vehicles entering and leaving the scene are normal.
     """
-    df = read_table(source).rename(columns=lambda c: ALIASES.get(str(c), str(c)))
+    df = read_table(source)
+    if "episode" in df.columns and "scene" in df.columns:
+        df = df.drop(columns="scene")  # documented precedence: episode
+    df = df.rename(columns=lambda c: ALIASES.get(str(c), str(c)))
+    if df.columns.duplicated().any():
+        twice = sorted(set(df.columns[df.columns.duplicated()]))
+        raise TrajectoryError(
+            f"columns {twice} are given twice (under their name and an alias, "
+            f"{ALIASES}); keep one of each"
+        )
     missing = [c for c in ("vehicle_id", "x", "y") if c not in df.columns]
     if "frame" not in df.columns and "time" not in df.columns:
         missing.append("frame or time")
@@ -100,6 +116,8 @@ def load_trajectories(source: str | Path | pd.DataFrame, fps: float = 15.0) -> p
             "sort the log or fix its clock"
         )
 
+    if df.empty:
+        raise TrajectoryError("trajectory table has no rows")
     df = df.sort_values(["episode", "vehicle_id", "frame"], kind="stable").reset_index(drop=True)
     if "vx" not in df.columns or "vy" not in df.columns:
         df["vx"], df["vy"] = _finite_difference_velocity(df)
@@ -107,6 +125,23 @@ def load_trajectories(source: str | Path | pd.DataFrame, fps: float = 15.0) -> p
     if "label" in df.columns:
         keep.append("label")
     return df[keep]
+
+
+def check_scoreable(df: pd.DataFrame) -> None:
+    """A loaded table CMetric can score: some scene with two frames and two vehicles
+    (centralities of a traffic graph, fitted over time)."""
+    frames = df.groupby("episode").frame.nunique()
+    if frames.max() < 2:
+        raise TrajectoryError(
+            f"every scene has a single frame ({frames.size} scene(s)); CMetric fits "
+            "centralities over time and needs a few seconds of frames per vehicle"
+        )
+    vehicles = df.groupby("episode").vehicle_id.nunique()
+    if vehicles.max() < 2:
+        raise TrajectoryError(
+            "every scene has a single vehicle; CMetric scores a vehicle against its "
+            "neighbours in the traffic graph and needs at least two vehicles in a scene"
+        )
 
 
 def _finite_difference_velocity(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from bgap.cmetric.centrality import Scene, centralities
-from bgap.cmetric.io import load_trajectories
+from bgap.cmetric.io import check_scoreable, load_trajectories
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.poly import fit_polynomials, sliding_windows, window_view
 from bgap.cmetric.styles import STYLES, window_aggressiveness, window_styles
@@ -35,6 +35,7 @@ def score_trajectories(
     """Score every vehicle of a trajectory table (DataFrame, CSV or Parquet)."""
     cfg = cfg or CMetricConfig()
     table = load_trajectories(source, fps=fps)
+    check_scoreable(table)
     labels = table.groupby(["episode", "vehicle_id"]).label.first() if "label" in table else None
     bar = tqdm(
         total=int(table.groupby("episode").frame.nunique().sum()),

@@ -1,0 +1,73 @@
+"""How every command meets its user: one line per known mistake, one line per interruption.
+
+Every ``python -m bgap.<command>`` runs through :func:`run`: a bad value, an unknown key, a
+missing file or a defective trajectory table ends the command with one line on stderr (what
+is wrong, the offending value, how to fix it) and exit status 2, never a traceback; Ctrl-C
+ends it with one line saying what was saved and how to continue, exit status 130. Errors
+that are not known mistakes (bugs) keep their traceback.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from typing import Any, NoReturn
+
+from bgap.errors import ConfigError, Interrupted
+
+BAD_INPUT = 2
+INTERRUPTED = 130
+
+
+def one_line(err: BaseException) -> str:
+    """An exception (and its cause) as one line: Hydra's and OmegaConf's messages span
+    several lines and end with the config search path, which a user does not need."""
+    text = str(err)
+    cause = err.__cause__ or err.__context__
+    if cause is not None and str(cause) not in text:
+        text += "\n" + str(cause)
+    parts: list[str] = []
+    for line in (raw.strip() for raw in text.splitlines()):
+        if line.startswith(("Config search path", "Set the environment variable HYDRA")):
+            break
+        if not line or line.startswith(("full_key:", "object_type", "reference_type")):
+            continue
+        parts.append(line)
+    return " ".join(parts)
+
+
+def fail(prog: str, message: str, status: int = BAD_INPUT) -> NoReturn:
+    print(f"{prog}: {message}", file=sys.stderr)
+    raise SystemExit(status)
+
+
+def known_errors() -> tuple[type[BaseException], ...]:
+    """The exception types that mean bad input, not a bug."""
+    from hydra.errors import HydraException
+    from omegaconf.errors import OmegaConfBaseException
+
+    from bgap.cmetric.io import TrajectoryError
+
+    return (
+        ConfigError,
+        TrajectoryError,
+        FileNotFoundError,
+        NotADirectoryError,
+        IsADirectoryError,
+        PermissionError,
+        HydraException,
+        OmegaConfBaseException,
+    )
+
+
+def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
+    """Run ``task`` with the one-line error style; ``on_interrupt`` says what a Ctrl-C keeps
+    (an :class:`~bgap.errors.Interrupted` raised by the task says it instead)."""
+    try:
+        return task()
+    except Interrupted as err:
+        fail(prog, f"interrupted: {err}", INTERRUPTED)
+    except KeyboardInterrupt:
+        fail(prog, f"interrupted: {on_interrupt}", INTERRUPTED)
+    except known_errors() as err:
+        fail(prog, one_line(err))

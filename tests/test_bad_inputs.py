@@ -1,0 +1,241 @@
+"""Every command meets bad input with one line and exit status 2, and an interruption with one
+line saying what was kept; none of them changes a file of the repository.
+
+The commands run in this process through their entry points (``main()`` with ``sys.argv``),
+from a temporary working folder; a checksum of every file of the repository is compared
+before and after each case.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+ROWS = [(f, v, 10.0 * v + 2.0 * f, 4.0 * (v % 2)) for f in range(40) for v in range(3)]
+
+
+def _tables(folder: Path) -> None:
+    """One trajectory file per defect."""
+    good = pd.DataFrame(ROWS, columns=["frame", "vehicle_id", "x", "y"])
+    good.to_csv(folder / "good.csv", index=False)
+    good.drop(columns="y").to_csv(folder / "no_y.csv", index=False)
+    nan = good.copy()
+    nan.loc[3, "x"] = np.nan
+    nan.to_csv(folder / "nan.csv", index=False)
+    pd.concat([good, good.iloc[:1]]).to_csv(folder / "duplicate.csv", index=False)
+    late = good.copy()
+    late["time"] = late.frame / 15.0
+    late.loc[late.frame == 5, "time"] = 0.0
+    late.to_csv(folder / "unsorted.csv", index=False)
+    good[good.vehicle_id == 0].to_csv(folder / "one_vehicle.csv", index=False)
+    good[good.frame == 0].to_csv(folder / "one_frame.csv", index=False)
+    (folder / "empty.csv").write_text("")
+    good.iloc[:0].to_csv(folder / "header_only.csv", index=False)
+    words = good.astype({"x": str})
+    words.loc[0, "x"] = "left"
+    words.to_csv(folder / "wrong_type.csv", index=False)
+    ids = good.rename(columns={"vehicle_id": "id"})
+    ids["track_id"] = ids["id"]
+    ids.to_csv(folder / "both_ids.csv", index=False)
+    (folder / "notes.txt").write_text("not a table")
+
+
+CASES = [
+    # --- simulate: every config range and mistake
+    ("simulate", ["mix=1.5"], r"mix=1\.5 is invalid: must lie in \[0, 1\]"),
+    ("simulate", ["mix=-0.1"], r"mix=-0\.1 is invalid"),
+    ("simulate", ["radius=0"], r"radius=0\.0 is invalid: must be a positive"),
+    ("simulate", ["radius=-1"], r"radius=-1\.0 is invalid"),
+    ("simulate", ["seed=-3"], r"seed=-3 is invalid: must be >= 0"),
+    ("simulate", ["episodes=0"], r"episodes=0 is invalid: must be >= 1"),
+    ("simulate", ["env.duration=0"], r"env\.duration=0\.0 is invalid"),
+    ("simulate", ["env.lanes_count=0"], r"env\.lanes_count=0 is invalid"),
+    ("simulate", ["env.policy_frequency=2"], r"env\.simulation_frequency=15 is invalid"),
+    ("simulate", ["env.vehicles_count=many"], r"vehicles_count=many.*could not be converted"),
+    ("simulate", ["foo=1"], r"Could not override 'foo'"),
+    ("simulate", ["env=medium"], r"Could not find 'env/medium'.*dense.*sparse"),
+    ("simulate", ["behavior=reckless"], r"Could not find 'behavior/reckless'"),
+    ("simulate", ["behavior.aggressive.politeness=2"], r"politeness=2\.0 is invalid"),
+    ("simulate", ["reward.speed_range=[30,20]"], r"reward\.speed_range=\[30\.0, 20\.0\]"),
+    ("simulate", ["policy=nowhere/model.zip"], r"policy='nowhere/model\.zip' is invalid"),
+    ("simulate", ["render=true", "backend=vector"], r"render=True is invalid.*backend=highway"),
+    ("simulate", ["backend=gpu"], r"backend='gpu' is invalid"),
+    # --- train
+    ("train", ["agent.gamma=0"], r"agent\.gamma=0\.0 is invalid"),
+    ("train", ["agent.loss=l1"], r"agent\.loss='l1' is invalid: use mse or huber"),
+    ("train", ["agent.buffer_size=10"], r"agent\.buffer_size=10 is invalid"),
+    ("train", ["profile.n_envs=0"], r"profile\.n_envs=0 is invalid"),
+    ("train", ["profile.train_steps=0"], r"profile\.train_steps=0 is invalid"),
+    ("train", ["mix_sampling=sometimes"], r"mix_sampling='sometimes' is invalid"),
+    ("train", ["policy=clever"], r"policy='clever' is invalid"),
+    ("train", ["profile=huge"], r"Could not find 'profile/huge'"),
+    # --- evaluate and the main job
+    ("evaluate", ["baselines=[idle,sleepy]"], r"baselines=\['idle', 'sleepy'\] is invalid"),
+    ("evaluate", ["models=[{tmp}/nowhere]"], r"no model at .*nowhere; train it"),
+    ("evaluate", ["workers=0"], r"workers=0 is invalid"),
+    ("evaluate", ["grid.mixes=[1.5]"], r"grid\.mixes=\[1\.5\] is invalid"),
+    ("evaluate", ["grid.radii=[0]"], r"grid\.radii=\[0\.0\] is invalid"),
+    ("run", ["mix=2"], r"mix=2\.0 is invalid"),
+    ("run", ["seed=-1"], r"seed=-1 is invalid"),
+    # --- calibrate and sweep
+    ("calibrate", ["calibrate.bounds.acc=[6,1]"], r"calibrate\.bounds\.acc=\[6\.0, 1\.0\]"),
+    ("calibrate", ["calibrate.bounds.politness=[0,1]"], r"Could not override.*politness"),
+    ("calibrate", ["calibrate.classes=[reckless]"], r"calibrate\.classes=\['reckless'\]"),
+    ("calibrate", ["calibrate.trials=0"], r"calibrate\.trials=0 is invalid"),
+    ("calibrate", ["calibrate.scene_mix=0"], r"calibrate\.scene_mix=0\.0 is invalid"),
+    ("calibrate", ["cmetric.mu=-1"], r"cmetric\.mu=-1\.0 is invalid"),
+    (
+        "calibrate",
+        ["calibrate.storage=postgresql://bgap@127.0.0.1:9/none", "root={tmp}/out"],
+        r"calibrate\.storage",
+    ),
+    ("sweep", ["sweep=nosuch", "root={tmp}/out"], r"sweep='nosuch' has no search space"),
+    ("sweep", ["mode=both"], r"mode='both' is invalid"),
+    # --- CMetric: every trajectory-file defect
+    ("cmetric", [], r"input=None: give the trajectory table"),
+    ("cmetric", ["input={tmp}/missing.csv"], r"missing\.csv: no such file"),
+    ("cmetric", ["input={tmp}"], r"is a folder; give a \.csv or \.parquet file"),
+    ("cmetric", ["input={tmp}/notes.txt"], r"unknown format '\.txt'"),
+    ("cmetric", ["input={tmp}/empty.csv"], r"empty\.csv is empty"),
+    ("cmetric", ["input={tmp}/header_only.csv"], r"has no rows"),
+    ("cmetric", ["input={tmp}/no_y.csv"], r"missing column\(s\) \['y'\]"),
+    ("cmetric", ["input={tmp}/nan.csv"], r"column 'x' has 1 NaN"),
+    ("cmetric", ["input={tmp}/wrong_type.csv"], r"column 'x' has 1 NaN, infinite or non-numeric"),
+    ("cmetric", ["input={tmp}/duplicate.csv"], r"1 duplicate \(episode, frame, vehicle_id\)"),
+    ("cmetric", ["input={tmp}/unsorted.csv"], r"time is not increasing with frame"),
+    ("cmetric", ["input={tmp}/one_vehicle.csv"], r"single vehicle"),
+    ("cmetric", ["input={tmp}/one_frame.csv"], r"single frame"),
+    ("cmetric", ["input={tmp}/both_ids.csv"], r"columns \['vehicle_id'\] are given twice"),
+    ("cmetric", ["input={tmp}/good.csv", "fps=0"], r"fps=0\.0 is invalid"),
+    ("cmetric", ["input={tmp}/good.csv", "cmetric.window=0"], r"cmetric\.window=0\.0"),
+]
+
+MODULES = {
+    "simulate": "bgap.simulate",
+    "train": "bgap.train",
+    "evaluate": "bgap.evaluate",
+    "run": "bgap.run",
+    "calibrate": "bgap.calibrate",
+    "sweep": "bgap.sweep",
+    "cmetric": "bgap.cmetric.__main__",
+}
+
+
+def _checksums() -> dict[str, str]:
+    """Every file git tracks or would track in the repository, by content."""
+    listed = subprocess.run(
+        ["git", "ls-files", "--cached", "--others", "--exclude-standard"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
+    return {
+        name: hashlib.sha1((ROOT / name).read_bytes()).hexdigest()
+        for name in listed
+        if (ROOT / name).is_file()
+    }
+
+
+@pytest.fixture(scope="module")
+def repository():
+    return _checksums()
+
+
+def _command(name: str, args: list[str], monkeypatch, capsys) -> tuple[int, str]:
+    """Exit status (0 when the command returns) and stderr of ``python -m bgap.<name>``."""
+    main = importlib.import_module(MODULES[name]).main
+    monkeypatch.setattr(sys, "argv", [f"bgap.{name}", *args])
+    try:
+        main()
+        status = 0
+    except SystemExit as stop:
+        status = stop.code
+    return status, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("name,args,message", CASES, ids=[" ".join(c[1]) or c[0] for c in CASES])
+def test_bad_input_gets_one_line_and_status_2(
+    name, args, message, tmp_path, monkeypatch, capsys, repository
+):
+    _tables(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    args = [a.replace("{tmp}", str(tmp_path)) for a in args]
+    status, err = _command(name, args, monkeypatch, capsys)
+    assert status == 2, err
+    assert err.startswith(f"bgap.{name}: ") and err.count("\n") == 1, err
+    assert re.search(message, err), err
+    assert _checksums() == repository  # nothing outside the working folder changed
+
+
+def test_at_least_forty_cases():
+    assert len(CASES) >= 40
+
+
+def test_a_model_of_another_density_is_a_clear_error(tmp_path, monkeypatch, capsys):
+    from bgap.config import compose, validate
+    from bgap.train import train
+
+    monkeypatch.chdir(tmp_path)
+    cfg = validate(compose("train", ["env=sparse", "profile=tiny", f"root={tmp_path}"]))
+    run = train(cfg, progress=False)
+    status, err = _command(
+        "evaluate", ["env=dense", f"models=[{run}]", "baselines=[]"], monkeypatch, capsys
+    )
+    assert status == 2 and err.count("\n") == 1, err
+    assert "observes 5 vehicles" in err and "density sparse" in err
+
+
+def test_ctrl_c_says_what_was_kept_and_how_to_continue(tmp_path, monkeypatch, capsys, repository):
+    from bgap.agents.monitor import SB3Monitor
+
+    monkeypatch.chdir(tmp_path)
+    original = SB3Monitor._on_step
+
+    def ctrl_c(self):
+        if self.num_timesteps >= 100:
+            self._request_stop(2, None)
+        return original(self)
+
+    monkeypatch.setattr(SB3Monitor, "_on_step", ctrl_c)
+    status, err = _command(
+        "train", ["profile=tiny", "run_dir=run", "hydra.job.chdir=false"], monkeypatch, capsys
+    )
+    err = err.strip().splitlines()[-1]  # after the progress bar
+    assert status == 130 and err.startswith("bgap.train: interrupted: training stopped"), err
+    assert "the checkpoint of step 100 is in run/checkpoints" in err
+    assert "python -m bgap.train resume=true run_dir=run" in err
+    monkeypatch.setattr(SB3Monitor, "_on_step", original)
+    # the same command without resume=true refuses to start the run folder over
+    status, err = _command("train", ["profile=tiny", "run_dir=run"], monkeypatch, capsys)
+    assert status == 2 and "holds an unfinished training: resume=true" in err
+
+    import bgap.calibrate as cal
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cal, "scene_scores", stop)
+    status, err = _command("calibrate", ["root=out"], monkeypatch, capsys)
+    last = err.strip().splitlines()[-1]  # after the study's progress output
+    assert status == 130 and "Traceback" not in err
+    assert last.startswith("bgap.calibrate: interrupted: every finished trial is kept")
+    assert _checksums() == repository
+
+
+def test_a_run_folder_of_other_settings_is_refused(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    args = ["env=sparse", "episodes=1", "env.duration=2", "backend=vector", "out=data"]
+    assert _command("simulate", [*args, "mix=0.2"], monkeypatch, capsys)[0] == 0
+    status, err = _command("simulate", [*args, "mix=0.8"], monkeypatch, capsys)
+    assert status == 2 and "data holds a result of other settings: mix (0.2 there, 0.8 now)" in err
