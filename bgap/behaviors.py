@@ -82,6 +82,9 @@ class BehaviorConfig:
     name: str = "paper"
     conservative: DriverParams = field(default_factory=DriverParams)
     aggressive: DriverParams = field(default_factory=DriverParams)
+    converged: bool = True
+    """False in a calibrated preset whose search ended outside its tolerance: commands refuse
+    it unless ``behavior.converged=true`` says it is used knowingly."""
 
 
 def paper_behavior() -> BehaviorConfig:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -202,7 +203,10 @@ def calibrate_class(
 
 
 def write_outputs(
-    cfg: CalibrateAppConfig, studies: dict[str, list[optuna.Study]], behavior: BehaviorConfig
+    cfg: CalibrateAppConfig,
+    studies: dict[str, list[optuna.Study]],
+    behavior: BehaviorConfig,
+    stats: dict[str, Any],
 ) -> dict[str, Any]:
     """Table I beside ours, the scores the preset reaches, and the two plots."""
     import matplotlib
@@ -225,8 +229,8 @@ def write_outputs(
     table.to_csv(out / "table.csv", index=False)
     (out / "table.md").write_text(table.to_markdown(index=False) + "\n")
 
-    stats = scene_scores(cfg, behavior)  # the preset as written, on the calibration scenes
     summary = {
+        "converged": behavior.converged,
         "targets": asdict(c.targets),
         "achieved": {x: stats[f"mean_{x}"] for x in CLASSES},
         "speed": {x: stats[f"speed_{x}"] for x in CLASSES},
@@ -286,7 +290,21 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
             study = calibrate_class(replace(cfg, behavior=behavior), label, progress, storage)
             studies[label].append(study)
             behavior = with_params(behavior, label, dict(study.best_params))
-    behavior = replace(behavior, name=preset_file(cfg).stem)
+    stats = scene_scores(cfg, behavior)  # the preset as written, on the calibration scenes
+    c = cfg.calibrate
+    misses = {
+        label: stats[f"mean_{label}"] - getattr(c.targets, label)
+        for label in c.classes
+        if abs(stats[f"mean_{label}"] - getattr(c.targets, label)) > c.tolerance
+    }
+    behavior = replace(behavior, name=preset_file(cfg).stem, converged=not misses)
+    if misses:
+        off = ", ".join(f"{k} {v:+.3f}" for k, v in misses.items())
+        warnings.warn(
+            f"calibration ended outside its tolerance {c.tolerance} ({off}): the preset is "
+            "marked converged: false; more calibrate.trials or calibrate.episodes may reach it",
+            stacklevel=2,
+        )
     targets = ", ".join(f"{k} {v}" for k, v in asdict(cfg.calibrate.targets).items())
     write_preset(
         behavior,
@@ -294,7 +312,7 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
         preset_file(cfg),
         f"Written by python -m bgap.calibrate (targets: {targets}); report: {report_dir(cfg)}",
     )
-    return write_outputs(cfg, studies, behavior)
+    return write_outputs(cfg, studies, behavior, stats)
 
 
 @app(

@@ -53,6 +53,13 @@ class BaseConfig:
     def __post_init__(self) -> None:
         check(self.backend in BACKENDS, "backend", self.backend, "use highway or vector")
         check(self.seed >= 0, "seed", self.seed, "must be >= 0 (numpy seeds are non-negative)")
+        check(
+            self.behavior.converged,
+            "behavior",
+            self.behavior.name,
+            "is a calibration that ended outside its tolerance (converged: false in the "
+            "preset); continue the calibration, or use it knowingly with behavior.converged=true",
+        )
         check_config(env_config(self))  # the one validator both simulators run
 
 

@@ -70,6 +70,7 @@ CASES = [
     ("simulate", ["policy=nowhere/model.zip"], r"policy='nowhere/model\.zip' is invalid"),
     ("simulate", ["render=true", "backend=vector"], r"render=True is invalid.*backend=highway"),
     ("simulate", ["backend=gpu"], r"backend='gpu' is invalid"),
+    ("simulate", ["behavior.converged=false"], r"behavior='paper' is invalid: is a calibration"),
     # --- train
     ("train", ["agent.gamma=0"], r"agent\.gamma=0\.0 is invalid"),
     ("train", ["agent.loss=l1"], r"agent\.loss='l1' is invalid: use mse or huber"),
