@@ -240,3 +240,76 @@ def test_a_run_folder_of_other_settings_is_refused(tmp_path, monkeypatch, capsys
     assert _command("simulate", [*args, "mix=0.2"], monkeypatch, capsys)[0] == 0
     status, err = _command("simulate", [*args, "mix=0.8"], monkeypatch, capsys)
     assert status == 2 and "data holds a result of other settings: mix (0.2 there, 0.8 now)" in err
+
+
+def test_a_users_calibration_and_sweep_write_only_under_their_root(tmp_path, monkeypatch, capsys):
+    """With root= in a temporary folder, the repository's git status stays clean."""
+
+    def status() -> str:
+        return subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=all"],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout
+
+    before = status()
+    calibrate = ["calibrate.trials=1", "calibrate.rounds=1", "calibrate.episodes=1"]
+    calibrate += ["calibrate.duration=5", f"root={tmp_path}/cal"]
+    assert _command("calibrate", calibrate, monkeypatch, capsys)[0] == 0
+    assert (tmp_path / "cal/presets/behavior/user_calibrated.yaml").exists()
+    sweep = ["trials=1", "profile=tiny", "sweep_eval_episodes=2", f"root={tmp_path}/sw"]
+    assert _command("sweep", sweep, monkeypatch, capsys)[0] == 0
+    assert (tmp_path / "sw/presets/reward/user_tuned.yaml").exists()
+    assert status() == before
+
+
+def test_settings_that_differ_never_share_a_folder_or_a_study():
+    from dataclasses import replace
+
+    from bgap.config import compose, validate
+    from bgap.run import results_dir
+    from bgap.sweep import study_name
+
+    run = validate(compose("run", []))
+    other_reward = validate(compose("run", ["reward=authors"]))
+    assert results_dir(run) != results_dir(other_reward)
+    assert results_dir(run) == results_dir(replace(run, workers=7))  # speed only
+    sweep = validate(compose("sweep", []))
+    longer = validate(compose("sweep", ["profile.train_steps=60000"]))
+    assert study_name(sweep) != study_name(longer)
+    assert study_name(sweep) == study_name(replace(sweep, trials=99))  # a rerun's budget
+
+
+def test_a_training_killed_at_any_moment_resumes_to_the_same_parameters(tmp_path):
+    """kill -9 while training (vector backend): the resumed run, from the last checkpoint,
+    ends with the parameters of an uninterrupted run."""
+    import os
+    import signal
+    import time
+
+    from bgap.agents.dqn import DQN
+    from bgap.config import compose, validate
+    from bgap.train import train
+
+    overrides = ["profile=tiny", "profile.checkpoint_every=40", "mix_sampling=paper"]
+    whole = train(validate(compose("train", [*overrides, f"run_dir={tmp_path}/whole"])), False)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    args = [sys.executable, "-m", "bgap.train", *overrides, f"run_dir={tmp_path}/cut"]
+    child = subprocess.Popen(args, cwd=tmp_path, env=env, stderr=subprocess.DEVNULL)
+    state = tmp_path / "cut/checkpoints/state.pkl"
+    deadline = time.time() + 120
+    while not state.exists() and child.poll() is None and time.time() < deadline:
+        time.sleep(0.05)
+    child.send_signal(signal.SIGKILL)
+    child.wait()
+    assert state.exists() and not (tmp_path / "cut/model.zip").exists()
+    cfg = validate(compose("train", [*overrides, f"run_dir={tmp_path}/cut", "resume=true"]))
+    cut = train(cfg, progress=False)
+
+    def parameters(run):
+        model = DQN.load(run / "model.zip", device="cpu")
+        return np.concatenate([p.detach().numpy().ravel() for p in model.policy.parameters()])
+
+    np.testing.assert_array_equal(parameters(whole), parameters(cut))

@@ -1,0 +1,37 @@
+"""The committed results are the pipeline's outputs for the committed code and parameters."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_path):
+    """``dvc status`` in a clone of the committed tree: outputs not pulled yet are fine
+    (models and episodes live in the DVC cache), changed code, parameters or commands are
+    not (they mean the committed results came from other code)."""
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("needs a git checkout")
+    clone = tmp_path / "clone"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+    dvc = Path(sys.executable).parent / "dvc"
+    done = subprocess.run(
+        [str(dvc), "status", "--json"], cwd=clone, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr
+    stale = {
+        stage: change
+        for stage, changes in json.loads(done.stdout or "{}").items()
+        for change in changes
+        if isinstance(change, dict)
+        and any(k in change for k in ("changed deps", "changed command", "changed params"))
+        or change in ("changed command", "always changed")
+    }
+    assert not stale, json.dumps(stale, indent=1)[:3000]
