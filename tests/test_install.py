@@ -95,6 +95,7 @@ def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(t
             "-m",
             "bgap.simulate",
             "behavior=user_calibrated",
+            "behavior.converged=true",  # 2 trials do not converge: used knowingly
             "episodes=1",
             "env.duration=3",
             "backend=vector",
