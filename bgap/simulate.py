@@ -10,8 +10,6 @@ per episode: crash, ego speed, lane changes, ...), ``config.yaml``, ``command.tx
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pandas as pd
 from omegaconf import DictConfig
 from tqdm import tqdm
@@ -42,19 +40,10 @@ def record(
 
 
 def simulate(
-    cfg: SimulateConfig,
-    episodes: int | None = None,
-    progress: bool = True,
-    gif_path: str | Path | None = None,
+    cfg: SimulateConfig, episodes: int | None = None, progress: bool = True
 ) -> pd.DataFrame:
-    """Every frame of ``episodes`` seeded episodes (seeds ``cfg.seed + k``) as a table; with
-    ``gif_path``, the first episode is also drawn there (highway-env only)."""
-    result = record(cfg, episodes, progress, render=gif_path is not None)
-    if gif_path and result.images:
-        import imageio.v2 as imageio
-
-        imageio.mimsave(gif_path, result.images, duration=0.2, loop=0)
-    return result.trajectories
+    """Every frame of ``episodes`` seeded episodes (seeds ``cfg.seed + k``) as a table."""
+    return record(cfg, episodes, progress).trajectories
 
 
 @app("simulate", "bgap.simulate", "nothing was written; rerun the command")
