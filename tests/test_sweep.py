@@ -15,6 +15,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+import sqlalchemy
 
 from bgap.config import compose, validate
 from bgap.errors import ConfigError
@@ -153,15 +154,27 @@ def test_a_killed_workers_trial_does_not_block_the_study(tmp_path, postgres, mon
 
     w = _worker(tmp_path, postgres, 3, "killed")
     storage = optuna.storages.RDBStorage(postgres)
+    engine = sqlalchemy.create_engine(postgres)
+    beating = sqlalchemy.text(  # running trials whose heartbeat thread has recorded once
+        "SELECT count(*) FROM trials t JOIN trial_heartbeats h ON h.trial_id = t.trial_id"
+        " WHERE t.state = 'RUNNING'"
+    )
     deadline = time.time() + 120
-    while time.time() < deadline:  # wait for its first trial to start, then kill it
+    # Wait for its first trial to start *and record a heartbeat*, then kill it. Optuna
+    # never fails a running trial that has no heartbeat yet (RDBStorage._get_stale_trial_ids
+    # skips it), and the heartbeat thread starts a moment after the trial turns RUNNING:
+    # killing in that moment left the trial running for good (a flaky CI run).
+    while time.time() < deadline:
         try:
             study = optuna.load_study(study_name="killed", storage=storage)
-            if any(t.state == TrialState.RUNNING for t in study.trials):
-                break
-        except KeyError:
+            with engine.connect() as db:
+                if db.execute(beating).scalar():
+                    break
+        except (KeyError, sqlalchemy.exc.ProgrammingError):  # no study / tables yet
             pass
         time.sleep(0.5)
+    engine.dispose()
+    study = optuna.load_study(study_name="killed", storage=storage)
     w.send_signal(signal.SIGKILL)
     w.wait()
     stale = [t.number for t in study.trials if t.state == TrialState.RUNNING]
