@@ -191,7 +191,10 @@ class ExperimentConfig(BaseConfig):
     baselines: list[str] = field(default_factory=lambda: ["idle", "random"])
     """Scripted policies evaluated beside the models: idle, random, left."""
     eval_seed: int = 100_000
-    """Evaluation episode k of every cell uses seed eval_seed + k, for every policy."""
+    """Test episodes: episode k of every cell uses seed eval_seed + k, for every policy."""
+    val_seed: int = 50_000
+    """Validation episodes (training's periodic evaluations, sweeps' scores) use seed
+    val_seed + k: choices are made on these, never on the test episodes (ours)."""
     workers: int = 2
     """Evaluation worker processes."""
     out: Optional[str] = None
@@ -209,6 +212,13 @@ class ExperimentConfig(BaseConfig):
         for b in self.baselines:
             check(b in BASELINES, "baselines", self.baselines, f"each one of {BASELINES}")
         check(self.workers >= 1, "workers", self.workers, "must be >= 1")
+        check(
+            self.val_seed + 10_000 <= self.eval_seed or self.eval_seed + 10_000 <= self.val_seed,
+            "val_seed",
+            self.val_seed,
+            f"must be at least 10000 away from eval_seed={self.eval_seed} (validation and test "
+            "episodes never share seeds)",
+        )
 
 
 @dataclass
@@ -340,12 +350,16 @@ class SweepConfig(ExperimentConfig):
     """Search space ``sweeps/<sweep>.yaml`` (``reward`` or ``dqn``)."""
     mode: str = "multi"
     """``multi``: minimise collisions and maximise speed (Pareto front); ``single``: the
-    scalarisation collision % - speed_weight * speed, with pruning."""
+    scalarisation collision % - speed_weight * speed, with pruning; ``constrained``:
+    minimise collisions among policies at least ``speed_floor`` x idle's speed, with pruning."""
     trials: int = 20
     """Finished trials wanted in the study, counted across workers and reruns."""
     speed_weight: float = 2.0
     """Collision percentage points one m/s of average speed is worth (single mode, and the
     choice of the written preset on a Pareto front)."""
+    speed_floor: float = 0.9
+    """Constrained mode: the fraction of idle's mean speed (same validation episodes) a
+    policy must reach to count as feasible."""
     prune_every: int = 0
     """Single mode: steps between intermediate evaluations (0: a quarter of the budget)."""
     sweep_eval_episodes: int = 30
@@ -363,7 +377,9 @@ class SweepConfig(ExperimentConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check(self.mode in ("multi", "single"), "mode", self.mode, "use multi or single")
+        modes = ("multi", "single", "constrained")
+        check(self.mode in modes, "mode", self.mode, f"use one of {modes}")
+        check(0 < self.speed_floor <= 2, "speed_floor", self.speed_floor, "a fraction in (0, 2]")
 
 
 def register_configs() -> None:

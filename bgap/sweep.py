@@ -33,7 +33,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from bgap.config import ExperimentConfig, SweepConfig, app, compose, load, validate
 from bgap.errors import ConfigError
 from bgap.presets import SWEEPS_DIR, selection_hint, write_preset
-from bgap.rollout import greedy, rollout
+from bgap.rollout import baseline, greedy, rollout
 from bgap.runs import VOLATILE, digest
 from bgap.scenario import env_config
 from bgap.studies import open_storage, sqlite_url
@@ -103,10 +103,29 @@ class PruneCallback(BaseCallback):
 
 
 def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
-    """Collision % and average speed of the greedy model on fixed seeds."""
-    seeds = range(cfg.eval_seed, cfg.eval_seed + episodes)
-    rows = rollout(env_config(cfg), greedy(model), seeds, cfg.backend).episodes
+    """Collision % and average speed of the greedy model on the validation episodes of its
+    own training traffic (the mix drawn as in training)."""
+    return _validation(greedy(model), cfg, episodes)
+
+
+def _validation(policy, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
+    from bgap.train import training_config
+
+    cfg = training_config(cfg)
+    seeds = range(cfg.val_seed, cfg.val_seed + episodes)
+    rows = rollout(env_config(cfg, cfg.mix_sampling), policy, seeds, cfg.backend).episodes
     return 100.0 * float(rows.crashed.mean()), float(rows.avg_speed.mean())
+
+
+def objective(cfg: SweepConfig, crash: float, speed: float, idle_speed: float) -> float:
+    """The single-valued objective (minimised). ``single``: collision % - speed_weight *
+    speed. ``constrained``: collision %, for a policy whose mean speed reaches ``speed_floor``
+    x idle's on the same episodes; below it, 100 + the shortfall in % of that floor, so any
+    policy fast enough ranks above any that is not (safety bought by crawling is no win)."""
+    if cfg.mode == "single":
+        return crash - cfg.speed_weight * speed
+    floor = cfg.speed_floor * idle_speed
+    return crash if speed >= floor else 100.0 + 100.0 * (floor - speed) / floor
 
 
 def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) -> Any:
@@ -138,21 +157,27 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
     trial.set_user_attr("overrides", overrides)
 
     def score(model, c, episodes):
-        crash, speed = evaluate_model(model, c, episodes)
-        return crash - cfg.speed_weight * speed
+        idle = _validation(baseline("idle"), c, episodes)[1]
+        return objective(cfg, *evaluate_model(model, c, episodes), idle)
 
     callbacks = []
-    if cfg.mode == "single":
+    if cfg.mode != "multi":
         every = cfg.prune_every or max(tcfg.profile.train_steps // 4, 1)
         callbacks.append(PruneCallback(trial, tcfg, every, score))
     train(tcfg, progress=False, callbacks=callbacks)
     model = DQN.load(run_dir / "model.zip", device="cpu")
     crash, speed = evaluate_model(model, tcfg, cfg.sweep_eval_episodes)
-    trial.set_user_attr("collision_pct", crash)
-    trial.set_user_attr("avg_speed", speed)
+    idle_crash, idle_speed = _validation(baseline("idle"), tcfg, cfg.sweep_eval_episodes)
+    for key, value in (
+        ("collision_pct", crash),
+        ("avg_speed", speed),
+        ("idle_collision_pct", idle_crash),
+        ("idle_avg_speed", idle_speed),
+    ):
+        trial.set_user_attr(key, value)
     if cfg.mode == "multi":
         return crash, speed
-    return crash - cfg.speed_weight * speed
+    return objective(cfg, crash, speed, idle_speed)
 
 
 def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
@@ -173,7 +198,7 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
             directions=["minimize", "maximize"] if multi else None,
             direction=None if multi else "minimize",
             sampler=optuna.samplers.TPESampler(seed=None),  # workers must not repeat draws
-            pruner=None if multi else optuna.pruners.MedianPruner(n_startup_trials=3),
+            pruner=None if multi else optuna.pruners.MedianPruner(n_startup_trials=5),
             load_if_exists=True,
         )
     finished = (TrialState.COMPLETE, TrialState.PRUNED)
@@ -189,8 +214,9 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
 
 
 def chosen_trial(study: optuna.Study, cfg: SweepConfig) -> optuna.trial.FrozenTrial:
-    """Single mode: the best trial. Multi: the Pareto trial with the best scalarisation."""
-    if cfg.mode == "single":
+    """Single and constrained mode: the best trial. Multi: the Pareto trial with the best
+    scalarisation."""
+    if cfg.mode != "multi":
         return study.best_trial
     front = study.best_trials
     return min(front, key=lambda t: t.values[0] - cfg.speed_weight * t.values[1])
@@ -210,8 +236,11 @@ def write_outputs(study: optuna.Study, cfg: SweepConfig) -> dict[str, Path]:
             {
                 "trial": t.number,
                 **t.params,
-                "collision_pct": t.user_attrs.get("collision_pct"),
-                "avg_speed": t.user_attrs.get("avg_speed"),
+                "value": t.value if len(t.values) == 1 else None,
+                **{
+                    k: t.user_attrs.get(k)
+                    for k in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed")
+                },
                 "run_dir": t.user_attrs.get("run_dir"),
             }
             for t in done
@@ -220,54 +249,71 @@ def write_outputs(study: optuna.Study, cfg: SweepConfig) -> dict[str, Path]:
     table.to_csv(out / "trials.csv", index=False)
     chosen = chosen_trial(study, cfg)
     paths = {"trials": out / "trials.csv"}
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    ax.scatter(table.avg_speed, table.collision_pct, c="lightgray", label="trials")
     if cfg.mode == "multi":
         front = {t.number for t in study.best_trials}
         table["pareto"] = table.trial.isin(front)
         table[table.pareto].to_csv(out / "pareto.csv", index=False)
-        fig, ax = plt.subplots(figsize=(5, 3.6))
-        ax.scatter(table.avg_speed, table.collision_pct, c="lightgray", label="trials")
         p = table[table.pareto].sort_values("avg_speed")
         ax.plot(p.avg_speed, p.collision_pct, "o-", color="tab:red", label="Pareto front")
+        paths["pareto"] = out / "pareto.csv"
+    if "idle_avg_speed" in table and table.idle_avg_speed.notna().any():
+        idle_speed = float(table.idle_avg_speed.mean())
         ax.scatter(
-            [chosen.user_attrs["avg_speed"]],
-            [chosen.user_attrs["collision_pct"]],
-            marker="*",
-            s=200,
-            color="k",
-            label="chosen",
-            zorder=5,
-        )
-        ax.set_xlabel("average speed m/s (maximise)")
-        ax.set_ylabel("collision % (minimise)")
-        ax.set_title(f"{cfg.sweep} sweep, {cfg.env.name}")
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        fig.savefig(out / "pareto.png", dpi=120)
-        plt.close(fig)
-        paths.update(pareto=out / "pareto.csv", plot=out / "pareto.png")
+            [idle_speed], [float(table.idle_collision_pct.mean())], marker="s", color="tab:blue",
+            label="idle", zorder=4,
+        )  # fmt: skip
+        if cfg.mode == "constrained":
+            ax.axvline(cfg.speed_floor * idle_speed, ls="--", color="tab:blue", lw=0.8,
+                       label=f"{cfg.speed_floor:g} x idle speed")  # fmt: skip
+    ax.scatter(
+        [chosen.user_attrs["avg_speed"]],
+        [chosen.user_attrs["collision_pct"]],
+        marker="*",
+        s=200,
+        color="k",
+        label="chosen",
+        zorder=5,
+    )
+    ax.set_xlabel("validation mean speed m/s (maximise)")
+    ax.set_ylabel("validation collision % (minimise)")
+    ax.set_title(f"{cfg.sweep} sweep ({cfg.mode}), {cfg.env.name}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "pareto.png", dpi=120)
+    plt.close(fig)
+    paths["plot"] = out / "pareto.png"
     if cfg.write_preset:
-        paths["preset"] = write_tuned(cfg, chosen)
+        paths.update({f"preset_{g}": path for g, path in write_tuned(cfg, chosen).items()})
     (out / "chosen.json").write_text(
         json.dumps({"trial": chosen.number, "params": chosen.params, **chosen.user_attrs}, indent=1)
     )
     return paths
 
 
-def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> Path:
-    """The chosen trial's group (reward or agent) as a preset (``sweep.preset``, default
-    ``<root>/presets/<group>/user_tuned.yaml``)."""
-    groups = {key.split(".")[0] for key in trial.params}
-    if len(groups) != 1:
-        raise ConfigError(f"a sweep must stay inside one config group, got {sorted(groups)}")
-    group = groups.pop()
+def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> dict[str, Path]:
+    """The chosen trial's config groups (reward, agent) as presets: ``sweep.preset`` for a
+    one-group search, else ``<root>/presets/<group>/user_tuned.yaml`` per group."""
+    groups = sorted({key.split(".")[0] for key in trial.params})
+    if cfg.preset and len(groups) > 1:
+        raise ConfigError(
+            f"preset={cfg.preset} names one file but sweep={cfg.sweep} tunes {groups}; "
+            "leave preset unset (one user_tuned.yaml per group under <root>/presets)"
+        )
     tcfg = validate(compose("train", [*trial.user_attrs["overrides"]]))
     note = (
         f"Written by python -m bgap.sweep sweep={cfg.sweep} mode={cfg.mode} "
         f"(trial {trial.number}: {json.dumps(trial.user_attrs.get('collision_pct'))}% "
         f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)"
     )
-    path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
-    return write_preset(replace(getattr(tcfg, group), name=path.stem), group, path, note)
+    paths = {}
+    for group in groups:
+        path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
+        paths[group] = write_preset(
+            replace(getattr(tcfg, group), name=path.stem), group, path, note
+        )
+    return paths
 
 
 @app(
@@ -293,9 +339,9 @@ def main(dcfg: DictConfig) -> None:
     )
     for name, path in paths.items():
         print(f"{name}: {path}")
-    if "preset" in paths:
-        group = paths["preset"].parent.name
-        print(f"use the preset with: {selection_hint(group, paths['preset'])}")
+    for name, path in paths.items():
+        if name.startswith("preset_"):
+            print(f"use the preset with: {selection_hint(path.parent.name, path)}")
 
 
 if __name__ == "__main__":

@@ -38,9 +38,9 @@ from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.vector import VectorHighway
 from bgap.simulators import make_vector_env
 
-NOT_LEARNT = (*VOLATILE, "models", "baselines", "grid", "eval_seed", "out")
+NOT_LEARNT = (*VOLATILE, "models", "baselines", "grid", "eval_seed", "val_seed", "out")
 """Settings of a training's config that do not change what it learns (run folder checks).
-(``eval_seed`` only moves the periodic evaluations' episodes.)"""
+(``val_seed`` only moves the periodic evaluations' episodes; ``eval_seed`` the tests'.)"""
 
 
 def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
@@ -175,7 +175,7 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
         max_episodes=p.train_episodes,
         eval_every=p.eval_every_episodes,
         eval_episodes=p.eval_during_training,
-        eval_seed=cfg.eval_seed,
+        eval_seed=cfg.val_seed,  # validation episodes, never the test ones
     )
     if resuming:
         state = pickle.loads((ckpt / "state.pkl").read_bytes())
