@@ -188,10 +188,13 @@ class ExperimentConfig(BaseConfig):
     """Continue an interrupted training run from its last checkpoint."""
     models: list[str] = field(default_factory=list)
     """``bgap.evaluate``: run folders (or model.zip files) to evaluate."""
-    baselines: list[str] = field(default_factory=lambda: ["idle", "random"])
-    """Scripted policies evaluated beside the models: idle, random, left."""
+    baselines: list[str] = field(default_factory=lambda: ["idle", "random", "rule"])
+    """Scripted policies evaluated beside the models: idle, random, left, rule (IDM + MOBIL)."""
     eval_seed: int = 100_000
     """Test episodes: episode k of every cell uses seed eval_seed + k, for every policy."""
+    seeds: list[int] = field(default_factory=list)
+    """``bgap.run``: training seeds, each trained and evaluated, with intervals across them
+    (training seeds are the independent units); empty: ``[seed]``."""
     val_seed: int = 50_000
     """Validation episodes (training's periodic evaluations, sweeps' scores) use seed
     val_seed + k: choices are made on these, never on the test episodes (ours)."""
@@ -212,6 +215,12 @@ class ExperimentConfig(BaseConfig):
         for b in self.baselines:
             check(b in BASELINES, "baselines", self.baselines, f"each one of {BASELINES}")
         check(self.workers >= 1, "workers", self.workers, "must be >= 1")
+        check(
+            all(s >= 0 for s in self.seeds) and len(set(self.seeds)) == len(self.seeds),
+            "seeds",
+            self.seeds,
+            "must be distinct non-negative training seeds, e.g. seeds=[0,1,2]",
+        )
         check(
             self.val_seed + 10_000 <= self.eval_seed or self.eval_seed + 10_000 <= self.val_seed,
             "val_seed",

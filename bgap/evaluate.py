@@ -6,7 +6,9 @@ Every policy plays the same episodes: episode k of a cell is seeded ``eval_seed 
 differences between policies are paired. Per episode we record whether it ended in a crash,
 the ego's average speed (sampled each policy step) and its lane changes (actions that moved
 its target lane, see ``info["lane_change"]``). Per cell: collision frequency (% of episodes
-that end in a crash, 95% Wilson interval), mean speed and mean lane changes (95% t interval).
+that end in a crash, 95% Wilson interval), mean speed and mean lane changes (95% t interval),
+and the split of the crashes by kind (``ending``: rear end, rear-ended, lane change; see
+:class:`bgap.rollout.EpisodeStats`).
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from bgap.errors import ConfigError
 from bgap.rollout import as_policy, rollout
 from bgap.scenario import env_config, env_preset
 from bgap.stats import t_interval, wilson_interval
-from bgap.vocab import BASELINES
+from bgap.vocab import BASELINES, CRASH_KINDS
 
 
 @dataclass(frozen=True)
@@ -155,9 +157,18 @@ def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
                 "lane_changes_lo": l_lo,
                 "lane_changes_hi": l_hi,
                 "return": g["return"].mean(),
+                **crash_split(g),
             }
         )
     return pd.DataFrame(rows)
+
+
+def crash_split(episodes: pd.DataFrame) -> dict[str, float]:
+    """% of episodes ending in each kind of crash (``<kind>_pct``, :data:`CRASH_KINDS`)."""
+    if "ending" not in episodes:  # episodes recorded before the endings were
+        return {}
+    share = episodes.ending.value_counts(normalize=True)
+    return {f"{kind}_pct": 100.0 * float(share.get(kind, 0.0)) for kind in CRASH_KINDS}
 
 
 def write_results(out: Path, episodes: pd.DataFrame, summary: pd.DataFrame) -> None:
@@ -169,16 +180,24 @@ def write_results(out: Path, episodes: pd.DataFrame, summary: pd.DataFrame) -> N
 
 def format_table(summary: pd.DataFrame) -> str:
     """The paper's three bars as text: collision %, speed, lane changes with 95% CIs."""
+    split = all(f"{kind}_pct" in summary for kind in CRASH_KINDS)
+    w = max(15, *(len(str(p)) + 1 for p in summary.policy))
     lines = [
-        f"{'policy':<15}{'mix':>5}{'density':>9}{'radius':>8}{'episodes':>9}"
+        f"{'policy':<{w}}{'mix':>5}{'density':>9}{'radius':>8}{'episodes':>9}"
         f"{'collisions %':>22}{'speed m/s':>20}{'lane changes':>20}"
+        + ("   crashes %: rear-end / rear-ended / lane change / other" if split else "")
     ]
     for r in summary.itertuples():
         lines.append(
-            f"{r.policy:<15}{r.mix:>5.2f}{r.density:>9}{r.radius:>8.0f}{r.episodes:>9}"
+            f"{r.policy:<{w}}{r.mix:>5.2f}{r.density:>9}{r.radius:>8.0f}{r.episodes:>9}"
             f"{r.collision_pct:>8.1f} [{r.collision_lo:5.1f},{r.collision_hi:5.1f}]"
             f"{r.avg_speed:>8.2f} [{r.speed_lo:5.2f},{r.speed_hi:5.2f}]"
             f"{r.lane_changes:>8.2f} [{r.lane_changes_lo:5.2f},{r.lane_changes_hi:5.2f}]"
+            + (
+                "   " + " / ".join(f"{getattr(r, f'{kind}_pct'):.0f}" for kind in CRASH_KINDS)
+                if split
+                else ""
+            )
         )
     return "\n".join(lines)
 

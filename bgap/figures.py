@@ -54,7 +54,13 @@ def load_episodes(results_dir: str | Path) -> pd.DataFrame:
     path = Path(results_dir) / "episodes.csv"
     if not path.exists():
         raise FileNotFoundError(f"{path} not found: run python -m bgap.evaluate first")
-    df = pd.read_csv(path)
+    return parse_policies(pd.read_csv(path))
+
+
+def parse_policies(df: pd.DataFrame) -> pd.DataFrame:
+    """``family`` and ``train_seed`` columns parsed from policy names
+    ``<density>-<family>-s<seed>`` (baselines: their own name, seed -1)."""
+    df = df.copy()
     parsed = df.policy.str.extract(MODEL)
     df["family"] = parsed["family"].fillna(df.policy)
     df["train_seed"] = pd.to_numeric(parsed["seed"]).fillna(-1).astype(int)
@@ -64,7 +70,7 @@ def load_episodes(results_dir: str | Path) -> pd.DataFrame:
 
 def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
     """Per family and cell: mean over training seeds of each metric and its 95% interval
-    (across seeds with >= 2 seeds; across episodes otherwise)."""
+    (across seeds with >= 2 seeds that differ; across episodes otherwise)."""
     keys = ["family", "density", "mix", "radius"]
     per_seed = df.groupby([*keys, "train_seed"])[list(METRICS)].mean().reset_index()
     rows = []
@@ -73,9 +79,12 @@ def cell_stats(df: pd.DataFrame) -> pd.DataFrame:
         episodes = df.set_index(keys).loc[key]
         for m in METRICS:
             row[m] = g[m].mean()
-            if len(g) > 1:
+            spread = len(g) > 1 and g[m].nunique() > 1
+            if spread:
                 row[f"{m}_lo"], row[f"{m}_hi"] = mean_interval(g[m].to_numpy())
-            elif m == "collision_pct":  # one seed: Wilson interval of the crash count
+            elif m == "collision_pct":
+                # one seed, or seeds that all agree (a zero-width t interval): the Wilson
+                # interval of all their episodes' crashes, which is never of zero width
                 lo, hi = wilson_interval(int(episodes.crashed.sum()), len(episodes))
                 row[f"{m}_lo"], row[f"{m}_hi"] = 100 * lo, 100 * hi
             else:

@@ -10,7 +10,7 @@ on either simulator (:func:`bgap.simulators.make_vector_env`). Episode ``k`` is 
 ``seeds[k]``, and so is the policy's own randomness in it, so every policy meets the same
 traffic and a result does not depend on which episodes were played beside it.
 
-A policy is any of: a baseline name (``idle``, ``random``, ``left``); the path of a saved
+A policy is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``); the path of a saved
 Stable-Baselines3 model (``model.zip`` or its run folder; DQN, PPO, A2C, SAC and TD3 are
 recognised from the file, or named as ``ppo:path``) or a loaded model (anything with SB3's
 ``predict``), played greedily; a callable from a batch of observations ``(B, V, 5)`` to
@@ -34,7 +34,7 @@ import pandas as pd
 from bgap.errors import ConfigError
 from bgap.recorder import table_from_states
 from bgap.simulators import make_vector_env
-from bgap.vocab import BASELINES, IDLE, LABEL_NAMES, LANE_LEFT, N_ACTIONS
+from bgap.vocab import BASELINES, IDLE, LABEL_NAMES, LANE_CHANGE_WINDOW, LANE_LEFT, N_ACTIONS
 
 Policy = Callable[[np.ndarray, list[np.random.Generator]], np.ndarray]
 """A batch of observations (B, V, 5) and one random stream per episode -> B actions."""
@@ -44,9 +44,16 @@ TERMS = ("collision", "lane_change", "right_lane", "high_speed")
 
 
 # ---------------------------------------------------------------------------- policies
-def baseline(name: str) -> Policy:
+def baseline(name: str, config: dict[str, Any] | None = None) -> Policy:
     """A scripted ego: ``idle`` holds lane and speed, ``left`` always asks for the left
-    lane, ``random`` draws a meta-action uniformly from the episode's stream."""
+    lane, ``random`` draws a meta-action uniformly from the episode's stream, ``rule`` drives
+    by IDM and MOBIL (:mod:`bgap.agents.rule_based`, for the lanes and speeds of the
+    environment ``config``)."""
+    if name == "rule":
+        from bgap.agents.rule_based import rule_based
+
+        driver = rule_based(config)
+        return lambda obs, rngs: driver(obs)
     if name == "idle":
         return lambda obs, rngs: np.full(len(obs), IDLE)
     if name == "left":
@@ -105,12 +112,12 @@ def load_model(spec: str | Path) -> Any:
     return classes[algo].load(path, device="cpu")
 
 
-def as_policy(spec: Any) -> tuple[Policy, int | None]:
+def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:
     """Any policy form (module docstring) as a :data:`Policy`, with the number of observation
-    rows it needs (None: any)."""
+    rows it needs (None: any). ``config``: the environment a baseline drives in."""
     if isinstance(spec, (str, Path)):
         if str(spec) in BASELINES:
-            return baseline(str(spec)), None
+            return baseline(str(spec), config), None
         spec = load_model(spec)
     if hasattr(spec, "predict"):
         return greedy(spec), int(spec.observation_space.shape[0])
@@ -133,34 +140,60 @@ def as_policy(spec: Any) -> tuple[Policy, int | None]:
 class EpisodeStats:
     """Running per-episode statistics of B environments, from the step infos both backends
     share; :meth:`row` gives a finished episode's figures. Used by the rollout and by
-    training, so both count speed, lane changes and crashes the same way."""
+    training, so both count speed, lane changes and crashes the same way.
 
-    def __init__(self, num_envs: int) -> None:
+    How a crash happened (``ending``, :data:`bgap.vocab.ENDINGS`): ``lane_change`` when the
+    ego started a lane change in the step of the crash or the step before (at the paper's
+    1 Hz, contact within :data:`~bgap.vocab.LANE_CHANGE_WINDOW` = 2 s of its start);
+    otherwise ``rear_end`` when the vehicle it touched is ahead of it (``info["contact_dx"]``
+    > 0), ``rear_ended`` when behind. Our definitions; the paper counts crashes only."""
+
+    def __init__(self, num_envs: int, policy_frequency: float = 1.0) -> None:
         self.speed = np.zeros(num_envs)
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self.lanes = np.zeros(num_envs, dtype=np.int64)
         self.total = np.zeros(num_envs)
         self.crashed = np.zeros(num_envs, dtype=bool)
         self.terms = np.zeros((num_envs, len(TERMS)))
+        self.last_lane_change = np.full(num_envs, -(10**9), dtype=np.int64)
+        self.contact = np.full(num_envs, np.nan)
+        # Steps whose crash a lane change started in them or before them is blamed for.
+        self.window = max(int(np.ceil(LANE_CHANGE_WINDOW * policy_frequency)) - 1, 0)
 
     def add(self, idx: np.ndarray, reward: np.ndarray, info: dict[str, Any]) -> None:
         """Account one step of envs ``idx`` (their rewards and the vector step's info)."""
         self.speed[idx] += np.asarray(info["ego_speed"], dtype=float)[idx]
         self.steps[idx] += 1
-        self.lanes[idx] += np.asarray(info["lane_change"], dtype=np.int64)[idx]
+        changed = np.asarray(info["lane_change"], dtype=np.int64)[idx]
+        self.lanes[idx] += changed
+        self.last_lane_change[idx[changed > 0]] = self.steps[idx[changed > 0]]
         self.total[idx] += np.asarray(reward, dtype=float)[idx]
         self.crashed[idx] = np.asarray(info["crashed"], dtype=bool)[idx]
+        if "contact_dx" in info:
+            self.contact[idx] = np.asarray(info["contact_dx"], dtype=float)[idx]
         rewards = info.get("rewards", {})
         for k, term in enumerate(TERMS):
             if f"{term}_reward" in rewards:
                 self.terms[idx, k] += np.asarray(rewards[f"{term}_reward"], dtype=float)[idx]
 
+    def ending(self, i: int) -> str:
+        """How env ``i``'s episode ended (so far): :data:`bgap.vocab.ENDINGS`."""
+        if not self.crashed[i]:
+            return "timeout"
+        if self.steps[i] - self.last_lane_change[i] <= self.window:
+            return "lane_change"
+        dx = self.contact[i]
+        if np.isnan(dx) or dx == 0.0:  # no partner reported
+            return "other"
+        return "rear_end" if dx > 0 else "rear_ended"
+
     def row(self, i: int) -> dict[str, Any]:
-        """Env ``i``'s episode so far: crash, mean ego speed, lane changes, steps, return
-        and each reward term's mean per step."""
+        """Env ``i``'s episode so far: crash, how it ended, mean ego speed, lane changes,
+        steps, return and each reward term's mean per step."""
         steps = max(int(self.steps[i]), 1)
         return {
             "crashed": bool(self.crashed[i]),
+            "ending": self.ending(i),
             "avg_speed": float(self.speed[i] / steps),
             "lane_changes": int(self.lanes[i]),
             "steps": int(self.steps[i]),
@@ -172,6 +205,8 @@ class EpisodeStats:
         for array in (self.speed, self.steps, self.lanes, self.total, self.crashed):
             array[i] = 0
         self.terms[i] = 0.0
+        self.last_lane_change[i] = -(10**9)
+        self.contact[i] = np.nan
 
 
 # ---------------------------------------------------------------------------- rollout
@@ -205,7 +240,7 @@ def rollout(
     ``progress(k)`` is called with the number of episodes each batch finished.
     """
     seeds = [int(s) for s in seeds]
-    act, _ = as_policy(policy)
+    act, _ = as_policy(policy, config)
     if batch is None:
         batch = min(len(seeds), 256) if backend == "vector" else 1
     rows, tables, images = [], [], []
@@ -217,7 +252,7 @@ def rollout(
         if callable(reset):  # stateful policies (a scripted ego) start over per batch
             reset()
         try:
-            result = _play(venv, act, chunk, record, film)
+            result = _play(venv, act, chunk, record, film, config.get("policy_frequency", 1))
         finally:
             venv.close()
         rows.extend({"seed": seed, **row} for seed, row in zip(chunk, result[0], strict=True))
@@ -235,14 +270,14 @@ def rollout(
 
 
 def _play(
-    venv: Any, act: Policy, seeds: Sequence[int], record: bool, film: bool
+    venv: Any, act: Policy, seeds: Sequence[int], record: bool, film: bool, policy_frequency: float
 ) -> tuple[list[dict], list[tuple[np.ndarray, list[str]]], list[np.ndarray]]:
     """Every env's first episode after a seeded reset; an env that finished idles (its next
     episode is not counted)."""
     b = len(seeds)
     obs, info = venv.reset(seed=list(seeds))
     rngs = [np.random.default_rng(seed) for seed in seeds]
-    stats = EpisodeStats(b)
+    stats = EpisodeStats(b, policy_frequency)
     live = np.ones(b, dtype=bool)
     frames = [[info["reset_frames"][i]] for i in range(b)] if record else []
     labels = [[LABEL_NAMES[int(c)] for c in info["labels"][i]] for i in range(b)] if record else []

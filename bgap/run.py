@@ -15,10 +15,18 @@ from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
 
+import pandas as pd
 from omegaconf import DictConfig
 
 from bgap.config import ExperimentConfig, app, load
-from bgap.evaluate import evaluate, format_table, plot_comparison, summarize, write_results
+from bgap.evaluate import (
+    crash_split,
+    evaluate,
+    format_table,
+    plot_comparison,
+    summarize,
+    write_results,
+)
 from bgap.runs import VOLATILE, digest, save_run_metadata
 from bgap.train import run_dir_for, train, training_config
 from bgap.vocab import POLICIES
@@ -54,17 +62,22 @@ def _exclusive(run_dir: Path):
 
 def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     start = time.perf_counter()
+    seeds = cfg.seeds or [cfg.seed]
     models = {}
-    for policy in POLICIES:
-        pcfg = training_config(cfg, policy)
-        run_dir = run_dir_for(pcfg)
-        # Parallel jobs of a multirun can need the same model (the default policy of a
-        # density): one trains it, the others wait for it and reuse it.
-        with _exclusive(run_dir):
-            cached = (run_dir / "model.zip").exists()
-            print(f"[{policy}] {'reusing' if cached else 'training'} {run_dir}")
-            # resume=true: a training this command started and was interrupted continues
-            models[policy] = str(train(replace(pcfg, resume=True)) / "model.zip")
+    for seed in seeds:
+        for policy in POLICIES:
+            pcfg = training_config(replace(cfg, seed=seed), policy)
+            run_dir = run_dir_for(pcfg)
+            # Parallel jobs of a multirun can need the same model (the default policy of a
+            # density): one trains it, the others wait for it and reuse it.
+            with _exclusive(run_dir):
+                cached = (run_dir / "model.zip").exists()
+                print(f"[{policy} s{seed}] {'reusing' if cached else 'training'} {run_dir}")
+                # resume=true: a training this command started and was interrupted continues
+                model = str(train(replace(pcfg, resume=True)) / "model.zip")
+            # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.
+            name = policy if len(seeds) == 1 else f"{cfg.env.name}-{policy}-s{seed}"
+            models[name] = model
     out = results_dir(cfg)
     if dcfg is not None:
         save_run_metadata(out, dcfg)
@@ -75,8 +88,63 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     title = f"{cfg.env.name}, behaviour {cfg.behavior.name}, {cfg.profile.name} profile"
     plot_comparison(summary, out / "comparison.png", title)
     print(format_table(summary))
+    if len(seeds) > 1:
+        across = seed_summary(episodes)
+        across.to_csv(out / "seeds.csv", index=False)
+        plot_comparison(across, out / "comparison_seeds.png", f"{title}, {len(seeds)} seeds")
+        print(f"\nacross {len(seeds)} training seeds (mean and 95% interval over seeds):")
+        print(format_table(across))
+    for line in idle_flags(summary if len(seeds) == 1 else seed_summary(episodes), cfg):
+        print(line)
     print(f"results in {out} ({time.perf_counter() - start:.0f} s)")
     return out
+
+
+def seed_summary(episodes):
+    """Per policy family and cell, the mean over training seeds of each figure and its 95%
+    interval across seeds (:func:`bgap.figures.cell_stats`), in :func:`summarize`'s columns."""
+    from bgap.figures import cell_stats, parse_policies
+
+    stats, _ = cell_stats(parse_policies(episodes))
+    renamed = stats.rename(
+        columns={
+            "family": "policy",
+            "collision_pct_lo": "collision_lo",
+            "collision_pct_hi": "collision_hi",
+            "avg_speed_lo": "speed_lo",
+            "avg_speed_hi": "speed_hi",
+        }
+    )
+    keys = list(zip(stats.family, stats.density, stats.mix, stats.radius, strict=True))
+    pooled = parse_policies(episodes).groupby(["family", "density", "mix", "radius"])
+    renamed["episodes"] = pooled.size().reindex(keys).to_numpy()  # all seeds' episodes
+    split = pooled.apply(lambda g: pd.Series(crash_split(g))).reindex(keys)
+    for column in split:
+        renamed[column] = split[column].to_numpy()
+    return renamed
+
+
+def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
+    """A line per trained policy evaluated in its own training traffic that does not beat
+    idle there (fewer collisions at a mean speed of at least 90% of idle's): such a policy is
+    flagged, never silently compared."""
+    lines = []
+    idle = summary[summary.policy == "idle"].set_index(["mix", "density", "radius"])
+    for r in summary[summary.policy.str.contains("|".join(POLICIES))].itertuples():
+        own = ("default" in r.policy and cfg.behavior.name == "stock") or (
+            "behavior_rich" in r.policy and cfg.mix_sampling == "fixed" and r.mix == cfg.mix
+        )
+        key = (r.mix, r.density, r.radius)
+        if not own or key not in idle.index:
+            continue
+        i = idle.loc[key]
+        beats = r.collision_pct < i.collision_pct and r.avg_speed >= 0.9 * i.avg_speed
+        verdict = "beats idle" if beats else "FLAGGED: does not beat idle"
+        lines.append(
+            f"{r.policy} in its own traffic (mix {r.mix:g}): {r.collision_pct:.1f}% collisions, "
+            f"{r.avg_speed:.2f} m/s; idle {i.collision_pct:.1f}%, {i.avg_speed:.2f} m/s: {verdict}"
+        )
+    return lines
 
 
 @app(

@@ -15,6 +15,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
 
+import numpy as np
 from highway_env.envs.highway_env import HighwayEnv
 
 from bgap.behaviors import BehaviorConfig, paper_behavior
@@ -149,6 +150,19 @@ def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
             "aggressive": asdict(cfg.behavior.aggressive),
         },
     }
+
+
+def contact_dx(x: np.ndarray, y: np.ndarray, crashed: np.ndarray) -> float:
+    """``info["contact_dx"]`` of both backends: after a step that ended in the ego's crash,
+    the longitudinal offset [m] (other minus ego) of the crashed vehicle nearest the ego,
+    i.e. the one it touched (> 0: ahead, < 0: behind); 0 when the ego has not crashed (not
+    NaN: infos must compare equal, gymnasium's determinism check). Arrays over the road's
+    vehicles, the ego first."""
+    if not crashed[0] or not np.any(crashed[1:]):
+        return 0.0
+    distance = np.hypot(x[1:] - x[0], y[1:] - y[0])
+    distance[~np.asarray(crashed[1:], dtype=bool)] = np.inf
+    return float(x[1 + int(np.argmin(distance))] - x[0])
 
 
 @dataclass

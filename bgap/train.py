@@ -27,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.vec_env import VecMonitor
 
 from bgap.agents.dqn import DQN
-from bgap.agents.monitor import SB3Monitor, TrainingMonitor
+from bgap.agents.monitor import SB3Monitor, TrainingMonitor, plot_learning_curves
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.behaviors import BehaviorConfig
 from bgap.config import ExperimentConfig, app, load
@@ -38,7 +38,9 @@ from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.vector import VectorHighway
 from bgap.simulators import make_vector_env
 
-NOT_LEARNT = (*VOLATILE, "models", "baselines", "grid", "eval_seed", "val_seed", "out")
+NOT_LEARNT = (
+    *VOLATILE, "models", "baselines", "grid", "eval_seed", "val_seed", "out", "seeds"
+)  # fmt: skip
 """Settings of a training's config that do not change what it learns (run folder checks).
 (``val_seed`` only moves the periodic evaluations' episodes; ``eval_seed`` the tests'.)"""
 
@@ -157,8 +159,10 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
     # The config it trains under (for policy=default the stock traffic, not the composed
     # behaviour preset); a folder of another training is refused, naming what differs.
     save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT)
-    if (run_dir / "model.zip").exists() and not resuming:
-        return run_dir  # finished already, with these settings
+    if (run_dir / "model.zip").exists():
+        # finished already, with these settings (model.zip is written last); also with
+        # resume=true, which bgap.run always passes
+        return run_dir
     if (ckpt / "state.pkl").exists() and not cfg.resume:
         raise ConfigError(
             f"{run_dir} holds an unfinished training: resume=true continues it (or choose "
@@ -223,6 +227,7 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
         env.close()
     callback.checkpoint()
     model.save(run_dir / "model.zip")
+    plot_learning_curves(run_dir)
     return run_dir
 
 

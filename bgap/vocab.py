@@ -35,14 +35,22 @@ N_ACTIONS = len(ACTIONS)
 # ---------------------------------------------------------------- experiment names
 POLICIES = ("behavior_rich", "default")
 """Trained policy families: trained in behaviour-rich traffic, or in stock traffic."""
-BASELINES = ("idle", "random", "left")
-"""Scripted ego policies evaluated beside trained ones."""
+BASELINES = ("idle", "random", "left", "rule")
+"""Scripted ego policies evaluated beside trained ones (``rule``: IDM + MOBIL over the
+meta-actions, :mod:`bgap.agents.rule_based`)."""
 BACKENDS = ("highway", "vector")
 """Simulators: highway-env (the reference) and bgap's vectorised port."""
 MIX_SAMPLING = ("fixed", "uniform", "paper")
 """Training mix per episode: the configured mix, uniform in [0, 1], or a paper mix."""
 PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
 """Aggressive fractions of the paper's evaluation grid."""
+ENDINGS = ("timeout", "rear_end", "rear_ended", "lane_change", "other")
+"""How an episode ended: it ran its full duration; the ego ran into a vehicle ahead; a
+vehicle ran into the ego from behind; contact during or within 2 s after an ego lane change;
+a crash whose partner was not reported (``bgap.rollout.EpisodeStats``)."""
+CRASH_KINDS = ENDINGS[1:]
+LANE_CHANGE_WINDOW = 2.0
+"""Seconds after the start of an ego lane change during which a crash counts as its doing."""
 
 # ---------------------------------------------------------------- road and vehicles
 LANE_WIDTH = float(StraightLane.DEFAULT_WIDTH)

@@ -305,3 +305,45 @@ def test_training_on_the_vector_backend_transfers_to_highway_env(tmp_path):
     assert s.loc["highway", "collision_lo"] <= s.loc["vector", "collision_hi"]
     for backend in runs:
         assert s.loc[backend, "collision_pct"] < s.loc["random", "collision_pct"], s
+
+
+def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_trainings(
+    tmp_path, capsys
+):
+    from bgap.run import run
+
+    cfg = exp_cfg(
+        "env=sparse",
+        "backend=vector",
+        "profile=tiny",
+        "profile.eval_episodes=6",
+        "profile.eval_every_episodes=2",
+        "seeds=[0,1]",
+        "baselines=[idle]",
+        f"root={tmp_path}",
+    )
+    out = run(cfg)
+    first = capsys.readouterr().out
+    assert first.count("] training ") == 4 and "across 2 training seeds" in first
+    episodes = pd.read_csv(out / "episodes.csv")
+    assert set(episodes.policy) == {
+        "sparse-behavior_rich-s0", "sparse-default-s0", "sparse-behavior_rich-s1",
+        "sparse-default-s1", "idle",
+    }  # fmt: skip
+    seeds = pd.read_csv(out / "seeds.csv").set_index("policy")
+    # the family's mean is the mean of its seeds' collision rates, its interval never empty
+    per_seed = episodes.groupby("policy").crashed.mean() * 100
+    rich = (per_seed["sparse-behavior_rich-s0"] + per_seed["sparse-behavior_rich-s1"]) / 2
+    assert seeds.loc["behavior_rich", "collision_pct"] == pytest.approx(rich)
+    assert (seeds.collision_hi > seeds.collision_lo).all()
+    assert "own traffic (mix 0.5)" in first  # beats idle, or flagged
+    # every training wrote its learning curves against gradient updates
+    runs = list((tmp_path / "runs").glob("*/learning_curves.png"))
+    assert len(runs) == 4
+    ev = pd.read_csv(runs[0].parent / "evaluations.csv")
+    assert {"gradient_updates", "idle_collision_pct", "rule_avg_speed"} <= set(ev.columns)
+    # a rerun reuses the four finished trainings and reproduces the numbers
+    run(cfg)
+    again = capsys.readouterr().out
+    assert again.count("] reusing ") == 4 and "] training " not in again
+    pd.testing.assert_frame_equal(pd.read_csv(out / "episodes.csv"), episodes)

@@ -30,13 +30,15 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.rollout import EpisodeStats, greedy, rollout
 
-INFO_KEYS = ("ego_speed", "lane_change", "crashed")
+INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
 
 
 def stack_infos(infos: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """SB3's list of per-env info dicts as the vector info (a dict of arrays) both simulators
     return, for :class:`~bgap.rollout.EpisodeStats`."""
-    stacked: dict[str, Any] = {k: np.array([info[k] for info in infos]) for k in INFO_KEYS}
+    stacked: dict[str, Any] = {
+        k: np.array([info[k] for info in infos]) for k in INFO_KEYS if k in infos[0]
+    }
     if all("rewards" in info for info in infos):
         terms = infos[0]["rewards"].keys()
         stacked["rewards"] = {t: np.array([info["rewards"][t] for info in infos]) for t in terms}
@@ -79,9 +81,10 @@ class TrainingMonitor:
         self.backend, self.max_episodes = backend, max_episodes
         self.eval_every, self.eval_episodes, self.eval_seed = eval_every, eval_episodes, eval_seed
         self.state = {"episodes": 0, "steps": 0, **(state or {})}
-        self.stats = EpisodeStats(num_envs)
+        self.stats = EpisodeStats(num_envs, env_config.get("policy_frequency", 1))
         self.recent: list[dict[str, Any]] = []
         self.log = log
+        self.references: dict[str, dict[str, float]] | None = None
 
     def on_step(
         self, rewards: np.ndarray, infos: dict[str, Any], dones: np.ndarray, policy: Any
@@ -106,19 +109,26 @@ class TrainingMonitor:
         return self.max_episodes is None or self.state["episodes"] < self.max_episodes
 
     def evaluate(self, policy: Any) -> dict[str, float]:
-        """Greedy episodes of ``policy`` in its own traffic; appended to evaluations.csv."""
+        """Greedy episodes of ``policy`` in its own traffic; appended to evaluations.csv with
+        the gradient updates made so far and, for reference, the idle and rule-based egos'
+        figures on the same episodes."""
         seeds = range(self.eval_seed, self.eval_seed + self.eval_episodes)
         frame = rollout(self.env_config, greedy(policy), seeds, self.backend).episodes
+        if self.references is None:  # the same episodes every time: played once
+            self.references = {
+                name: _figures(rollout(self.env_config, name, seeds, self.backend).episodes)
+                for name in REFERENCES
+            }
         record = {
             "episodes": self.state["episodes"],
             "steps": self.state["steps"],
-            "collision_pct": 100 * frame.crashed.mean(),
-            "avg_speed": frame.avg_speed.mean(),
-            "lane_changes": frame.lane_changes.mean(),
-            "return": frame["return"].mean(),
+            "gradient_updates": int(getattr(policy, "_n_updates", 0)),
+            **_figures(frame),
+            **{f"{name}_{k}": v for name, row in self.references.items() for k, v in row.items()},
         }
         for key in ("collision_pct", "avg_speed", "lane_changes", "return"):
             self.log(f"eval/{key}", float(record[key]))
+        self.log("eval/gradient_updates", record["gradient_updates"])
         path = self.run_dir / "evaluations.csv"
         pd.DataFrame([record]).to_csv(path, mode="a", header=not path.exists(), index=False)
         return record
@@ -145,6 +155,57 @@ class TrainingMonitor:
         self.state.update(state["monitor"])
         self.stats.__dict__.update(state["stats"])
         self.recent = state["recent"]
+
+
+REFERENCES = ("idle", "rule")
+"""Baselines whose validation figures each evaluation records beside the policy's."""
+
+
+def _figures(episodes: pd.DataFrame) -> dict[str, float]:
+    return {
+        "collision_pct": 100 * float(episodes.crashed.mean()),
+        "avg_speed": float(episodes.avg_speed.mean()),
+        "lane_changes": float(episodes.lane_changes.mean()),
+        "return": float(episodes["return"].mean()),
+    }
+
+
+def plot_learning_curves(run_dir: Path) -> Path | None:
+    """``learning_curves.png`` of a run folder: validation collision %, mean speed and return
+    against gradient updates, with the idle and rule-based egos on the same episodes (None
+    when the run made no periodic evaluation)."""
+    path = Path(run_dir) / "evaluations.csv"
+    if not path.exists():
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ev = pd.read_csv(path)
+    x = ev["gradient_updates"] if "gradient_updates" in ev else ev["steps"]
+    fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
+    for ax, (key, label) in zip(
+        axes,
+        [("collision_pct", "collisions [% episodes]"), ("avg_speed", "mean speed [m/s]"),
+         ("return", "return")],
+        strict=True,
+    ):  # fmt: skip
+        ax.plot(x, ev[key], "o-", ms=3, label="policy")
+        # a running mean over five evaluations: single evaluations are noisy
+        ax.plot(x, ev[key].rolling(5, min_periods=1).mean(), color="k", lw=1, label="mean of 5")
+        for name, style in zip(REFERENCES, ("--", ":"), strict=True):
+            if f"{name}_{key}" in ev:
+                ax.axhline(ev[f"{name}_{key}"].iloc[-1], ls=style, color="gray", label=name)
+        ax.set_xlabel("gradient updates" if "gradient_updates" in ev else "environment steps")
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=7)
+    fig.suptitle(f"validation during training: {Path(run_dir).name}", fontsize=9)
+    fig.tight_layout()
+    out = Path(run_dir) / "learning_curves.png"
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
 
 
 class SB3Monitor(BaseCallback):

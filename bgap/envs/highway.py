@@ -18,7 +18,7 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
-from bgap.scenario import REWARD_TERMS, check_config, default_config
+from bgap.scenario import REWARD_TERMS, check_config, contact_dx, default_config
 from bgap.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
 
 FrameListener = Callable[["BehaviorHighwayEnv"], None]
@@ -178,6 +178,7 @@ class BehaviorHighwayEnv(HighwayEnv):
                 "crashed": bool(self.vehicle.crashed),
                 "lane_change": self.lane_changed(),
                 "lane": int(self.vehicle.lane_index[2]),
+                "contact_dx": contact_dx(*_positions(self.road.vehicles)),
                 "aggressive_fraction": _fraction_aggressive(others),
                 "aggressive_fraction_observed": _fraction_aggressive(seen),
                 "observed_count": len(seen),
@@ -190,3 +191,9 @@ def _fraction_aggressive(vehicles: list[Vehicle]) -> float:
     if not vehicles:
         return 0.0
     return sum(getattr(v, "bgap_label", None) == AGGRESSIVE for v in vehicles) / len(vehicles)
+
+
+def _positions(vehicles: list[Vehicle]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x, y and crashed of ``vehicles`` (the ego first, as in ``road.vehicles``)."""
+    state = np.array([(*v.position, v.crashed) for v in vehicles], dtype=float)
+    return state[:, 0], state[:, 1], state[:, 2] > 0

@@ -22,6 +22,7 @@ INFO_KEYS = (
     "crashed",
     "lane_change",
     "lane",
+    "contact_dx",
     "aggressive_fraction",
     "aggressive_fraction_observed",
     "observed_count",

@@ -34,7 +34,7 @@ from bgap.behaviors import (
     mix_stream,
 )
 from bgap.errors import check
-from bgap.scenario import REWARD_TERMS, full_config
+from bgap.scenario import REWARD_TERMS, contact_dx, full_config
 from bgap.sim import core
 from bgap.sim.core import (
     ACC,
@@ -377,6 +377,13 @@ class VectorHighway(gym.vector.VectorEnv):
                 reward = (reward - low) / (high - low)
         return reward * t[:, 4], terms
 
+    def _contact_dx(self) -> np.ndarray:
+        """:func:`bgap.scenario.contact_dx` of every env (0 where the ego has not crashed)."""
+        out = np.zeros(self.num_envs)
+        for b in np.flatnonzero(self.g[:, 0, CRASHED]):
+            out[b] = contact_dx(self.f[b, :, X], self.f[b, :, Y], self.g[b, :, CRASHED] > 0)
+        return out
+
     def _info(self, lane_change: np.ndarray) -> dict[str, Any]:
         """Per-env info arrays; the observation counts come from the last :meth:`_observe`."""
         seen, seen_aggressive = self._counts[:, 0].copy(), self._counts[:, 1]
@@ -387,6 +394,7 @@ class VectorHighway(gym.vector.VectorEnv):
             "crashed": self.g[:, 0, CRASHED].astype(bool),
             "lane_change": lane_change.copy(),
             "lane": self.g[:, 0, LANE].copy(),
+            "contact_dx": self._contact_dx(),
             "aggressive_fraction": self.n_aggressive / max(self.n, 1),
             "aggressive_fraction_observed": seen_aggressive / np.maximum(seen, 1),
             "observed_count": seen,
