@@ -391,6 +391,30 @@ class SweepConfig(ExperimentConfig):
         check(0 < self.speed_floor <= 2, "speed_floor", self.speed_floor, "a fraction in (0, 2]")
 
 
+@dataclass
+class RecipeConfig(SweepConfig):
+    """``python -m bgap.recipe``: the recipe sweep, then its best trials rerun on more seeds."""
+
+    sweep: str = "recipe"
+    mode: str = "constrained"
+    candidates: int = 4
+    """Best sweep trials (by the constrained objective) rerun with ``check_seeds``."""
+    check_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    """Training seeds of each candidate's rerun."""
+    check_episodes: int = 100
+    """Validation episodes per candidate and seed (the same for the idle and rule egos)."""
+    preset_dir: Optional[str] = None
+    """Where the chosen ``reward/recipe.yaml`` and ``agent/recipe.yaml`` go; default
+    ``<root>/presets`` (the pipeline's stage: ``bgap/conf``)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check(self.mode != "multi", "mode", self.mode, "a recipe needs one objective")
+        check(self.candidates >= 1, "candidates", self.candidates, "must be >= 1")
+        check(len(self.check_seeds) >= 2, "check_seeds", self.check_seeds, ">= 2 seeds")
+        check(self.check_episodes >= 10, "check_episodes", self.check_episodes, ">= 10")
+
+
 def register_configs() -> None:
     """Register the schemas; YAML files name them in their defaults list. Idempotent."""
     # The presets folder on the search path (bgap.presets) need not exist yet.
@@ -411,6 +435,7 @@ def register_configs() -> None:
     cs.store(group="calibrate", name="base_calibrate", node=CalibrationConfig)
     cs.store(name="base_calibrate_app", node=CalibrateAppConfig)
     cs.store(name="base_sweep", node=SweepConfig)
+    cs.store(name="base_recipe", node=RecipeConfig)
 
 
 def validate(cfg: DictConfig) -> Any:

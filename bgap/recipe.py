@@ -1,0 +1,254 @@
+"""A training recipe that learns to avoid crashes: ``python -m bgap.recipe``.
+
+    python -m bgap.recipe                       # dense traffic, the paper's mixes, 40 trials
+    python -m bgap.recipe trials=60 candidates=5
+
+Three steps, all on validation episodes (seeds ``val_seed + k``; the test episodes of
+``bgap.evaluate`` are never looked at):
+
+1. **Sweep** (:mod:`bgap.sweep`, search space ``bgap/sweeps/recipe.yaml``: the reward's
+   weights and DQN's discount, target update, learning rate and final exploration) with the
+   objective fixed before any result was seen: the fewest validation collisions among
+   policies whose mean speed reaches ``speed_floor`` (0.9) x the idle ego's on the same
+   episodes (``mode=constrained``). One training seed per trial.
+2. **Check**: the ``candidates`` best trials are trained again with every seed of
+   ``check_seeds`` and played on ``check_episodes`` validation episodes, beside the idle and
+   rule-based egos on the same episodes. One trial's single lucky seed does not make a
+   recipe: the chosen candidate is the best by the same rule applied to its mean over seeds.
+3. **Presets**: the chosen candidate's reward and agent groups as ``reward/recipe.yaml`` and
+   ``agent/recipe.yaml`` under ``preset_dir`` (default ``<root>/presets``; the pipeline's
+   stage writes ``bgap/conf``, where they are the default of ``bgap.run`` and ``bgap.train``).
+
+Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pareto.png``
+(every trial), ``candidates.csv`` (candidate x seed), ``table.md``, ``chosen.json`` and
+``learning_curves.png`` (the chosen candidate's validation curves, every seed).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import pandas as pd
+from omegaconf import DictConfig
+
+from bgap.config import RecipeConfig, app, compose, load, validate
+from bgap.presets import selection_hint, write_preset
+from bgap.rollout import rollout
+from bgap.scenario import env_config
+from bgap.stats import t_interval
+from bgap.sweep import objective, study_name, sweep, write_outputs
+
+GROUPS = ("reward", "agent")
+"""Config groups a recipe sets (the search space's keys must stay inside them)."""
+
+
+def candidates(study: optuna.Study, k: int) -> list[optuna.trial.FrozenTrial]:
+    """The ``k`` finished trials with the lowest objective (ties: the earlier trial)."""
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    return sorted(done, key=lambda t: (t.value, t.number))[:k]
+
+
+def _validate_policy(tcfg, policy: Any, episodes: int) -> pd.DataFrame:
+    from bgap.train import training_config
+
+    c = training_config(tcfg)
+    seeds = range(c.val_seed, c.val_seed + episodes)
+    return rollout(env_config(c, c.mix_sampling), policy, seeds, c.backend).episodes
+
+
+def check_candidate(
+    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, root: Path, progress: bool = True
+) -> list[dict[str, Any]]:
+    """Train ``trial``'s settings with every check seed; one row per seed with the policy's,
+    the idle ego's and the rule-based ego's validation figures."""
+    from bgap.train import train
+
+    rows = []
+    for seed in cfg.check_seeds:
+        # The trial's settings with this run's profile: the same budget (part of the study's
+        # identity), and the periodic validation whose curves the check plots.
+        overrides = [
+            o
+            for o in trial.user_attrs["overrides"]
+            if not o.startswith(("seed=", "profile.", "profile="))
+        ]
+        budget = [f"profile.{k}={'null' if v is None else v}" for k, v in
+                  asdict(cfg.profile).items() if k != "name"]  # fmt: skip
+        tcfg = validate(
+            compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
+        )
+        run_dir = root / f"trial-{trial.number:04d}-s{seed}"
+        tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
+        train(replace(tcfg, resume=True), progress=progress)  # reused once finished
+        row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
+        for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
+            ep = _validate_policy(tcfg, policy, cfg.check_episodes)
+            prefix = "" if name == "policy" else f"{name}_"
+            row[f"{prefix}collision_pct"] = 100.0 * float(ep.crashed.mean())
+            row[f"{prefix}avg_speed"] = float(ep.avg_speed.mean())
+            if name == "policy":
+                row["lane_changes"] = float(ep.lane_changes.mean())
+                for kind, share in ep.ending.value_counts(normalize=True).items():
+                    row[f"{kind}_pct"] = 100.0 * float(share)
+        rows.append(row)
+        print(
+            f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
+            f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
+            f"{row['idle_avg_speed']:.2f} m/s)",
+            flush=True,
+        )
+    return rows
+
+
+def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
+    """Per candidate: means over seeds, 95% t intervals across seeds, the objective of the
+    means; sorted best first."""
+    rows = []
+    for trial, g in table.groupby("trial"):
+        row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
+        for key in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed",
+                    "rule_collision_pct", "rule_avg_speed", "lane_changes"):  # fmt: skip
+            row[key] = float(g[key].mean())
+        for key, top in (("collision_pct", 100.0), ("avg_speed", np.inf)):
+            lo, hi = t_interval(g[key].to_numpy())
+            row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
+        row["objective"] = objective(cfg, row["collision_pct"], row["avg_speed"],
+                                     row["idle_avg_speed"])  # fmt: skip
+        rows.append(row)
+    return pd.DataFrame(rows).sort_values(["objective", "trial"]).reset_index(drop=True)
+
+
+def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
+    """Validation collision % and speed against gradient updates, one line per seed."""
+    run_dirs = [d for d in run_dirs if (Path(d) / "evaluations.csv").exists()]
+    if not run_dirs:  # trained without periodic evaluation (profile.eval_every_episodes=0)
+        return
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
+    for run_dir in run_dirs:
+        ev = pd.read_csv(Path(run_dir) / "evaluations.csv")
+        label = Path(run_dir).name.rsplit("-", 1)[-1]
+        for ax, key in zip(axes, ("collision_pct", "avg_speed"), strict=True):
+            ax.plot(ev.gradient_updates, ev[key].rolling(5, min_periods=1).mean(), label=label)
+    for ax, key, label in zip(
+        axes, ("collision_pct", "avg_speed"), ("collisions [% episodes]", "mean speed [m/s]"),
+        strict=True,
+    ):  # fmt: skip
+        for name, style in (("idle", "--"), ("rule", ":")):
+            ref = pd.read_csv(Path(run_dirs[0]) / "evaluations.csv")[f"{name}_{key}"].iloc[-1]
+            ax.axhline(ref, ls=style, color="gray", label=name)
+        ax.set_xlabel("gradient updates")
+        ax.set_ylabel(f"validation {label}\n(running mean of 5 evaluations)")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(cfg: RecipeConfig, summary: pd.DataFrame, params: dict[str, dict]) -> str:
+    lines = [
+        f"# Recipe check: the {len(summary)} best sweep trials, {len(cfg.check_seeds)} training "
+        f"seeds each, {cfg.check_episodes} validation episodes per seed",
+        "",
+        f"Traffic: {cfg.env.name}, mix sampling {cfg.mix_sampling}. Rule: fewest collisions "
+        f"among candidates whose mean speed is at least {cfg.speed_floor:g} x idle's. "
+        "Intervals: 95% t across training seeds.",
+        "",
+        "| trial | collisions % [95% CI] | speed m/s [95% CI] | idle % / m/s | rule % / m/s "
+        "| lane changes | settings |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in summary.itertuples():
+        settings = ", ".join(f"{k}={v:.4g}" for k, v in params[r.trial].items())
+        lines.append(
+            f"| {r.trial}{' (chosen)' if r.Index == 0 else ''} | {r.collision_pct:.1f} "
+            f"[{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}] | {r.avg_speed:.2f} "
+            f"[{r.avg_speed_lo:.2f}, {r.avg_speed_hi:.2f}] | {r.idle_collision_pct:.1f} / "
+            f"{r.idle_avg_speed:.2f} | {r.rule_collision_pct:.1f} / {r.rule_avg_speed:.2f} "
+            f"| {r.lane_changes:.1f} | {settings} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
+    """Sweep, check and write the chosen recipe (module docstring); returns the paths."""
+    out = Path(cfg.out or Path(cfg.root) / "recipe")
+    study = sweep(cfg, progress=progress)
+    paths = write_outputs(study, replace(cfg, out=str(out / "sweep"), write_preset=False))
+    root = Path(cfg.root) / "sweeps" / study_name(cfg) / "check"  # beside the sweep's trials
+    chosen_from = candidates(study, cfg.candidates)
+    rows = [row for t in chosen_from for row in check_candidate(cfg, t, root, progress)]
+    table = pd.DataFrame(rows)
+    table.to_csv(out / "candidates.csv", index=False)
+    summary = choose(cfg, table)
+    params = {t.number: t.params for t in chosen_from}
+    (out / "table.md").write_text(markdown(cfg, summary, params))
+    best = summary.iloc[0]
+    trial = next(t for t in chosen_from if t.number == best.trial)
+    plot_curves(
+        list(table[table.trial == best.trial].run_dir),
+        out / "learning_curves.png",
+        f"recipe (trial {trial.number}): validation during training, each seed",
+    )
+    tcfg = validate(compose("train", trial.user_attrs["overrides"]))
+    preset_dir = Path(cfg.preset_dir or Path(cfg.root) / "presets")
+    note = (
+        f"Written by python -m bgap.recipe (sweep trial {trial.number}, checked on "
+        f"{len(cfg.check_seeds)} seeds x {cfg.check_episodes} validation episodes: "
+        f"{best.collision_pct:.1f}% collisions at {best.avg_speed:.2f} m/s; idle "
+        f"{best.idle_collision_pct:.1f}% at {best.idle_avg_speed:.2f} m/s)"
+    )
+    for group in GROUPS:
+        node = replace(getattr(tcfg, group), name="recipe")
+        paths[f"preset_{group}"] = write_preset(
+            node, group, preset_dir / group / "recipe.yaml", note
+        )
+    chosen = {
+        "trial": trial.number,
+        "params": trial.params,
+        "sweep": {k: v for k, v in trial.user_attrs.items() if k != "overrides"},
+        "check": {k: (None if isinstance(v, float) and np.isnan(v) else v)
+                  for k, v in best.to_dict().items()},
+    }  # fmt: skip
+    (out / "chosen.json").write_text(json.dumps(chosen, indent=1, default=float))
+    paths.update(
+        candidates=out / "candidates.csv",
+        table=out / "table.md",
+        curves=out / "learning_curves.png",
+        chosen=out / "chosen.json",
+    )
+    return paths
+
+
+@app(
+    "recipe",
+    "bgap.recipe",
+    "every finished sweep trial and training is kept; rerun the same command to continue",
+)
+def main(dcfg: DictConfig) -> None:
+    from bgap.runs import save_run_metadata
+
+    cfg: RecipeConfig = load(dcfg)
+    out = Path(cfg.out or Path(cfg.root) / "recipe")
+    save_run_metadata(out, dcfg)
+    paths = recipe(cfg)
+    print((out / "table.md").read_text())
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    for group in GROUPS:
+        path = paths[f"preset_{group}"]
+        print(f"use the preset with: {selection_hint(group, path)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,74 @@
+"""The recipe search: its objective, the choice among candidates, and one tiny run end to end."""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from bgap.config import compose, validate
+from bgap.recipe import choose
+from bgap.sweep import objective
+
+
+def _cfg(*overrides: str):
+    return validate(compose("recipe", list(overrides)))
+
+
+def test_constrained_objective_ranks_any_fast_enough_policy_above_any_slow_one():
+    cfg = _cfg()  # speed_floor 0.9
+    idle = 25.0
+    assert objective(cfg, 12.0, 24.0, idle) == 12.0  # 24 >= 22.5: its collision %
+    slow_safe = objective(cfg, 0.0, 20.0, idle)  # safety bought by crawling
+    assert slow_safe == pytest.approx(100 + 100 * (22.5 - 20.0) / 22.5)
+    assert objective(cfg, 99.0, 22.5, idle) < slow_safe
+    single = _cfg("mode=single", "speed_weight=2")
+    assert objective(single, 12.0, 24.0, idle) == pytest.approx(12.0 - 48.0)
+
+
+def test_choice_uses_the_mean_over_seeds_not_one_lucky_seed():
+    cfg = _cfg()
+    rows = []
+    for trial, crashes, speeds in (
+        (1, [0.0, 30.0, 30.0], [25.0, 25.0, 25.0]),  # one lucky seed, mean 20%
+        (2, [10.0, 12.0, 8.0], [24.0, 24.0, 24.0]),  # steady 10%
+        (3, [0.0, 0.0, 2.0], [21.0, 21.0, 21.0]),  # safe but below 0.9 x idle (22.5)
+    ):
+        for seed, (c, s) in enumerate(zip(crashes, speeds, strict=True)):
+            rows.append(
+                {"trial": trial, "seed": seed, "collision_pct": c, "avg_speed": s,
+                 "idle_collision_pct": 9.0, "idle_avg_speed": 25.0,
+                 "rule_collision_pct": 1.0, "rule_avg_speed": 27.0, "lane_changes": 1.0}
+            )  # fmt: skip
+    summary = choose(cfg, pd.DataFrame(rows))
+    assert list(summary.trial) == [2, 1, 3]
+    best = summary.iloc[0]
+    assert best.collision_pct == pytest.approx(10.0)
+    assert 0.0 <= best.collision_pct_lo < 10.0 < best.collision_pct_hi <= 100.0
+
+
+def test_the_recipe_config_refuses_a_multi_objective_or_a_single_seed_check():
+    from bgap.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="mode"):
+        _cfg("mode=multi")
+    with pytest.raises(ConfigError, match="check_seeds"):
+        _cfg("check_seeds=[0]")
+
+
+@pytest.mark.slow
+def test_a_tiny_recipe_writes_its_presets_and_tables(tmp_path):
+    from bgap.recipe import recipe
+
+    cfg = _cfg(
+        "profile=tiny", "profile.eval_every_episodes=3", "trials=2", "candidates=2",
+        "check_seeds=[0,1]", "check_episodes=10", "sweep_eval_episodes=4", f"root={tmp_path}",
+    )  # fmt: skip
+    paths = recipe(cfg, progress=False)
+    table = pd.read_csv(paths["candidates"])
+    assert len(table) == 4 and set(table.seed) == {0, 1}
+    reward = validate(
+        compose("train", ["reward=recipe", f"hydra.searchpath=[file://{tmp_path}/presets]"])
+    ).reward
+    chosen = pd.read_json(paths["chosen"], typ="series")
+    assert reward.collision == pytest.approx(chosen["params"]["reward.collision"])
+    assert paths["curves"].exists() and paths["table"].exists()
