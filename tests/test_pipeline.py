@@ -33,10 +33,13 @@ def pipeline(tmp_path_factory) -> Path:
     shutil.copytree(ROOT / "bgap", repo / "bgap")
     for name in ("dvc.yaml", "params.yaml", ".dvcignore"):
         shutil.copy(ROOT / name, repo / name)
-    (repo / "bgap/conf/behavior/calibrated.yaml").unlink(missing_ok=True)  # the stage makes it
+    for made_by_a_stage in ("behavior/calibrated", "reward/recipe", "agent/recipe"):
+        (repo / f"bgap/conf/{made_by_a_stage}.yaml").unlink(missing_ok=True)
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params.update(profile="tiny", seeds=[0], densities=["sparse"], grid="tiny", eval_episodes=4)
     params["calibrate"]["trials"] = 2
+    params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
+    params["recipe"]["sweep_episodes"] = 4
     params["parity"] = {"episodes": 3, "duration": 3}
     (repo / "params.yaml").write_text(yaml.safe_dump(params))
     _run(["git", "init", "-q"], repo)
