@@ -16,6 +16,7 @@ environments restart on fresh seeds.
 from __future__ import annotations
 
 import pickle
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -25,6 +26,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.vec_env import VecMonitor
+from tqdm import TqdmExperimentalWarning
 
 from bgap.agents.dqn import DQN
 from bgap.agents.monitor import SB3Monitor, TrainingMonitor, plot_learning_curves
@@ -208,14 +210,17 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
         callback.saved_at = int(model.num_timesteps)
     remaining = p.train_steps - model.num_timesteps
     try:
-        if remaining > 0:
-            model.learn(
-                total_timesteps=remaining,
-                callback=[callback, *callbacks],
-                progress_bar=progress,
-                reset_num_timesteps=not resuming,
-                tb_log_name="dqn",
-            )
+        # SB3's progress bar is tqdm's rich flavour, which warns that it is experimental
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", category=TqdmExperimentalWarning)
+            if remaining > 0:
+                model.learn(
+                    total_timesteps=remaining,
+                    callback=[callback, *callbacks],
+                    progress_bar=progress,
+                    reset_num_timesteps=not resuming,
+                    tb_log_name="dqn",
+                )
     except KeyboardInterrupt:
         saved = callback.saved_at
         where = f"the checkpoint of step {saved} is in {ckpt}" if saved else "no checkpoint yet"
