@@ -52,6 +52,10 @@ def _summary(table) -> dict:
     }
 
 
+PAPER = ["reward=highway", "agent=dqn"]
+"""The settings the expected values were recorded with (before the recipe became the default)."""
+
+
 def _same_summary(expected: dict, got: dict) -> None:
     for key, value in expected.items():
         assert got[key] == pytest.approx(value, rel=1e-12), key
@@ -60,7 +64,8 @@ def _same_summary(expected: dict, got: dict) -> None:
 def test_evaluation_grid_on_the_vector_backend_is_unchanged():
     from bgap.evaluate import Cell, evaluate
 
-    cfg = validate(compose("train", ["env=sparse", "workers=1", "backend=vector", "eval_seed=500"]))
+    cfg = validate(compose("train", [*PAPER, "env=sparse", "workers=1", "backend=vector",
+                                     "eval_seed=500"]))  # fmt: skip
     cells = [Cell(m, d, 180.0) for d in ("sparse", "dense") for m in (0.0, 0.6)]
     policies = {"idle": "idle", "random": "random", "left": "left"}
     episodes = evaluate(cfg, policies, cells, episodes=6, progress=False)
@@ -70,7 +75,8 @@ def test_evaluation_grid_on_the_vector_backend_is_unchanged():
 def test_evaluation_on_highway_env_is_unchanged():
     from bgap.evaluate import Cell, evaluate
 
-    overrides = ["env=sparse", "env.duration=15", "workers=1", "backend=highway", "eval_seed=500"]
+    overrides = [*PAPER, "env=sparse", "env.duration=15", "workers=1", "backend=highway",
+                 "eval_seed=500"]  # fmt: skip
     cfg = validate(compose("train", overrides))
     episodes = evaluate(
         cfg, {"idle": "idle", "random": "random"}, [Cell(0.6, "sparse", 90.0)], 3, False
@@ -111,7 +117,8 @@ def test_a_tiny_training_learns_the_same_parameters(tmp_path):
     from bgap.evaluate import Cell, evaluate
     from bgap.train import train
 
-    overrides = ["env=sparse", "profile=tiny", "backend=vector", f"root={tmp_path}", "workers=1"]
+    overrides = [*PAPER, "env=sparse", "profile=tiny", "backend=vector", f"root={tmp_path}",
+                 "workers=1"]  # fmt: skip
     cfg = validate(compose("train", [*overrides, "mix_sampling=paper", "seed=3"]))
     run = train(cfg, progress=False)
     model = DQN.load(run / "model.zip", device="cpu")
