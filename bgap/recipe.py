@@ -37,11 +37,13 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from bgap.config import RecipeConfig, app, compose, load, validate
+from bgap.evaluate import crash_split
 from bgap.presets import selection_hint, write_preset
 from bgap.rollout import rollout
 from bgap.scenario import env_config
 from bgap.stats import t_interval
 from bgap.sweep import objective, study_name, sweep, write_outputs
+from bgap.vocab import CRASH_KINDS
 
 GROUPS = ("reward", "agent")
 """Config groups a recipe sets (the search space's keys must stay inside them)."""
@@ -93,8 +95,7 @@ def check_candidate(
             row[f"{prefix}avg_speed"] = float(ep.avg_speed.mean())
             if name == "policy":
                 row["lane_changes"] = float(ep.lane_changes.mean())
-                for kind, share in ep.ending.value_counts(normalize=True).items():
-                    row[f"{kind}_pct"] = 100.0 * float(share)
+                row.update(crash_split(ep))
         rows.append(row)
         print(
             f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
@@ -112,8 +113,9 @@ def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
     for trial, g in table.groupby("trial"):
         row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
         for key in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed",
-                    "rule_collision_pct", "rule_avg_speed", "lane_changes"):  # fmt: skip
-            row[key] = float(g[key].mean())
+                    "rule_collision_pct", "rule_avg_speed", "lane_changes",
+                    *(f"{kind}_pct" for kind in CRASH_KINDS)):  # fmt: skip
+            row[key] = float(g[key].mean()) if key in g else 0.0
         for key, top in (("collision_pct", 100.0), ("avg_speed", np.inf)):
             lo, hi = t_interval(g[key].to_numpy())
             row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
@@ -133,6 +135,7 @@ def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    thousands = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k")
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
     for run_dir in run_dirs:
         ev = pd.read_csv(Path(run_dir) / "evaluations.csv")
@@ -147,6 +150,7 @@ def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
             ref = pd.read_csv(Path(run_dirs[0]) / "evaluations.csv")[f"{name}_{key}"].iloc[-1]
             ax.axhline(ref, ls=style, color="gray", label=name)
         ax.set_xlabel("gradient updates")
+        ax.xaxis.set_major_formatter(thousands)
         ax.set_ylabel(f"validation {label}\n(running mean of 5 evaluations)")
     axes[0].legend(fontsize=7)
     fig.suptitle(title, fontsize=9)
@@ -164,15 +168,16 @@ def markdown(cfg: RecipeConfig, summary: pd.DataFrame, params: dict[str, dict]) 
         f"among candidates whose mean speed is at least {cfg.speed_floor:g} x idle's. "
         "Intervals: 95% t across training seeds.",
         "",
-        "| trial | collisions % [95% CI] | speed m/s [95% CI] | idle % / m/s | rule % / m/s "
-        "| lane changes | settings |",
-        "|---|---|---|---|---|---|---|",
+        "| trial | collisions % [95% CI] | crashes %: rear-end / rear-ended / lane change "
+        "| speed m/s [95% CI] | idle % / m/s | rule % / m/s | lane changes | settings |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in summary.itertuples():
         settings = ", ".join(f"{k}={v:.4g}" for k, v in params[r.trial].items())
         lines.append(
             f"| {r.trial}{' (chosen)' if r.Index == 0 else ''} | {r.collision_pct:.1f} "
-            f"[{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}] | {r.avg_speed:.2f} "
+            f"[{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}] | {r.rear_end_pct:.1f} / "
+            f"{r.rear_ended_pct:.1f} / {r.lane_change_pct:.1f} | {r.avg_speed:.2f} "
             f"[{r.avg_speed_lo:.2f}, {r.avg_speed_hi:.2f}] | {r.idle_collision_pct:.1f} / "
             f"{r.idle_avg_speed:.2f} | {r.rule_collision_pct:.1f} / {r.rule_avg_speed:.2f} "
             f"| {r.lane_changes:.1f} | {settings} |"
@@ -184,7 +189,11 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     """Sweep, check and write the chosen recipe (module docstring); returns the paths."""
     out = Path(cfg.out or Path(cfg.root) / "recipe")
     study = sweep(cfg, progress=progress)
-    paths = write_outputs(study, replace(cfg, out=str(out / "sweep"), write_preset=False))
+    paths = write_outputs(
+        study,
+        replace(cfg, out=str(out / "sweep"), write_preset=False),
+        chosen_label="best single-seed trial (before the check)",
+    )
     root = Path(cfg.root) / "sweeps" / study_name(cfg) / "check"  # beside the sweep's trials
     chosen_from = candidates(study, cfg.candidates)
     rows = [row for t in chosen_from for row in check_candidate(cfg, t, root, progress)]

@@ -226,7 +226,11 @@ def chosen_trial(study: optuna.Study, cfg: SweepConfig) -> optuna.trial.FrozenTr
     return min(front, key=lambda t: t.values[0] - cfg.speed_weight * t.values[1])
 
 
-def write_outputs(study: optuna.Study, cfg: SweepConfig) -> dict[str, Path]:
+def write_outputs(
+    study: optuna.Study, cfg: SweepConfig, chosen_label: str = "chosen"
+) -> dict[str, Path]:
+    """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
+    chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -277,7 +281,7 @@ def write_outputs(study: optuna.Study, cfg: SweepConfig) -> dict[str, Path]:
         marker="*",
         s=200,
         color="k",
-        label="chosen",
+        label=chosen_label,
         zorder=5,
     )
     ax.set_xlabel("validation mean speed m/s (maximise)")
