@@ -404,8 +404,11 @@ class RecipeConfig(SweepConfig):
     check_episodes: int = 100
     """Validation episodes per candidate and seed (the same for the idle and rule egos)."""
     preset_dir: Optional[str] = None
-    """Where the chosen ``reward/recipe.yaml`` and ``agent/recipe.yaml`` go; default
-    ``<root>/presets`` (the pipeline's stage: ``bgap/conf``)."""
+    """Where the chosen ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` go;
+    default ``<root>/presets`` (the pipeline's stage: ``bgap/conf``)."""
+    preset_name: str = "user_recipe"
+    """Name of the written presets (``reward=user_recipe agent=user_recipe``); the pipeline's
+    stage writes the packaged ``recipe``, which a user's preset must not shadow."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

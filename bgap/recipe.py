@@ -15,9 +15,11 @@ Three steps, all on validation episodes (seeds ``val_seed + k``; the test episod
    ``check_seeds`` and played on ``check_episodes`` validation episodes, beside the idle and
    rule-based egos on the same episodes. One trial's single lucky seed does not make a
    recipe: the chosen candidate is the best by the same rule applied to its mean over seeds.
-3. **Presets**: the chosen candidate's reward and agent groups as ``reward/recipe.yaml`` and
-   ``agent/recipe.yaml`` under ``preset_dir`` (default ``<root>/presets``; the pipeline's
-   stage writes ``bgap/conf``, where they are the default of ``bgap.run`` and ``bgap.train``).
+3. **Presets**: the chosen candidate's reward and agent groups as
+   ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` under ``preset_dir``
+   (default ``<root>/presets/.../user_recipe.yaml``, then ``reward=user_recipe
+   agent=user_recipe``; the pipeline's stage writes ``bgap/conf/.../recipe.yaml``, the
+   default of ``bgap.run`` and ``bgap.train``).
 
 Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pareto.png``
 (every trial), ``candidates.csv`` (candidate x seed), ``table.md``, ``chosen.json`` and
@@ -218,9 +220,9 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         f"{best.idle_collision_pct:.1f}% at {best.idle_avg_speed:.2f} m/s)"
     )
     for group in GROUPS:
-        node = replace(getattr(tcfg, group), name="recipe")
+        node = replace(getattr(tcfg, group), name=cfg.preset_name)
         paths[f"preset_{group}"] = write_preset(
-            node, group, preset_dir / group / "recipe.yaml", note
+            node, group, preset_dir / group / f"{cfg.preset_name}.yaml", note
         )
     chosen = {
         "trial": trial.number,

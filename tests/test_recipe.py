@@ -67,7 +67,7 @@ def test_a_tiny_recipe_writes_its_presets_and_tables(tmp_path):
     table = pd.read_csv(paths["candidates"])
     assert len(table) == 4 and set(table.seed) == {0, 1}
     reward = validate(
-        compose("train", ["reward=recipe", f"hydra.searchpath=[file://{tmp_path}/presets]"])
+        compose("train", ["reward=user_recipe", f"hydra.searchpath=[file://{tmp_path}/presets]"])
     ).reward
     chosen = pd.read_json(paths["chosen"], typ="series")
     assert reward.collision == pytest.approx(chosen["params"]["reward.collision"])
