@@ -129,13 +129,20 @@ def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
 
 def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
     """Validation collision % and speed against gradient updates, one line per seed."""
-    run_dirs = [d for d in run_dirs if (Path(d) / "evaluations.csv").exists()]
-    if not run_dirs:  # trained without periodic evaluation (profile.eval_every_episodes=0)
-        return
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    run_dirs = [d for d in run_dirs if (Path(d) / "evaluations.csv").exists()]
+    if not run_dirs:  # trained without periodic validation: say so in the figure itself
+        fig, ax = plt.subplots(figsize=(6, 1.5))
+        ax.text(0.5, 0.5, "no periodic validation in these trainings\n"
+                "(profile.eval_every_episodes=0)", ha="center", va="center")  # fmt: skip
+        ax.set_axis_off()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return
 
     thousands = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k")
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
