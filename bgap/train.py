@@ -29,7 +29,12 @@ from stable_baselines3.common.vec_env import VecMonitor
 from tqdm import TqdmExperimentalWarning
 
 from bgap.agents.dqn import DQN
-from bgap.agents.monitor import SB3Monitor, TrainingMonitor, plot_learning_curves
+from bgap.agents.monitor import (
+    SB3Monitor,
+    TrainingMonitor,
+    plot_learning_curves,
+    recover_checkpoint,
+)
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.behaviors import BehaviorConfig
 from bgap.config import ExperimentConfig, app, load
@@ -157,6 +162,7 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
     cfg = training_config(cfg)
     run_dir = run_dir_for(cfg)
     ckpt = run_dir / "checkpoints"
+    recover_checkpoint(run_dir)  # a kill in the middle of writing one
     resuming = cfg.resume and (ckpt / "state.pkl").exists()
     # The config it trains under (for policy=default the stock traffic, not the composed
     # behaviour preset); a folder of another training is refused, naming what differs.

@@ -347,3 +347,54 @@ def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_traini
     again = capsys.readouterr().out
     assert again.count("] reusing ") == 4 and "] training " not in again
     pd.testing.assert_frame_equal(pd.read_csv(out / "episodes.csv"), episodes)
+
+
+@pytest.mark.parametrize("killed_at", ["writing", "swapping"])
+def test_a_kill_while_a_checkpoint_is_written_leaves_the_previous_one_whole(tmp_path, killed_at):
+    """The new checkpoint's files never mix with the previous one's state: killed while
+    writing them, the previous checkpoint stays; killed between the folder renames, the
+    complete new one is taken."""
+    from bgap.agents import monitor as mon
+
+    m = mon.TrainingMonitor(tmp_path, 1, env_config(make_cfg()), "vector", None, 0, 1, 0)
+    m.state["steps"] = 40
+    m.checkpoint({"model.zip": lambda p: p.write_text("m40"),
+                  "replay.pkl": lambda p: p.write_text("r40")}, {"env": 40})  # fmt: skip
+    m.state["steps"] = 80
+
+    class Killed(BaseException):
+        pass
+
+    def killed(path):
+        raise Killed
+
+    if killed_at == "writing":  # the model written, the replay buffer not
+        with pytest.raises(Killed):
+            m.checkpoint({"model.zip": lambda p: p.write_text("m80"), "replay.pkl": killed}, {})
+        want = ("m40", 40)
+    else:  # the new folder complete, the old one renamed away, the new one not yet in place
+        real = mon.os.replace
+        calls = []
+
+        def replace(a, b):
+            calls.append(a)
+            if len(calls) == 2:
+                raise Killed
+            real(a, b)
+
+        mon.os.replace = replace
+        try:
+            with pytest.raises(Killed):
+                save = {"model.zip": lambda p: p.write_text("m80"),
+                        "replay.pkl": lambda p: p.write_text("r80")}  # fmt: skip
+                m.checkpoint(save, {"env": 80})
+        finally:
+            mon.os.replace = real
+        assert not (tmp_path / "checkpoints").exists()
+        want = ("m80", 80)
+    mon.recover_checkpoint(tmp_path)
+    folder = tmp_path / "checkpoints"
+    state = pickle.loads((folder / "state.pkl").read_bytes())
+    assert ((folder / "model.zip").read_text(), state["env"]) == want
+    assert (folder / "replay.pkl").read_text() == f"r{want[1]}"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoints"]

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import pickle
+import shutil
 import signal
 import threading
 from collections.abc import Callable, Sequence
@@ -43,6 +44,25 @@ def stack_infos(infos: Sequence[dict[str, Any]]) -> dict[str, Any]:
         terms = infos[0]["rewards"].keys()
         stacked["rewards"] = {t: np.array([info["rewards"][t] for info in infos]) for t in terms}
     return stacked
+
+
+def _checkpoint_folders(run_dir: Path) -> tuple[Path, Path, Path]:
+    return tuple(Path(run_dir) / name for name in ("checkpoints", "checkpoints.next",
+                                                    "checkpoints.old"))  # fmt: skip
+
+
+def recover_checkpoint(run_dir: Path) -> None:
+    """Finish a checkpoint swap a kill interrupted (:meth:`TrainingMonitor.checkpoint`):
+    without ``checkpoints/``, the complete new one (written before the swap began) or else the
+    previous one takes its place; leftovers are removed."""
+    final, new, old = _checkpoint_folders(run_dir)
+    if not final.exists():
+        for candidate in (new, old):
+            if (candidate / "state.pkl").exists():
+                os.replace(candidate, final)
+                break
+    for leftover in (new, old):
+        shutil.rmtree(leftover, ignore_errors=True)
 
 
 class TrainingMonitor:
@@ -136,19 +156,24 @@ class TrainingMonitor:
     def checkpoint(self, save: dict[str, Callable[[Path], Any]], extra: dict[str, Any]) -> None:
         """Write ``checkpoints/``: each ``save[name](path)`` (the learner's model, replay
         buffer, ...) and ``state.pkl`` (counters, running episode statistics, ``extra``: the
-        environments' and random streams' state). Each file is written under a temporary
-        name and moved into place, so a kill leaves the previous checkpoint readable."""
-        folder = self.run_dir / "checkpoints"
-        folder.mkdir(parents=True, exist_ok=True)
+        environments' and random streams' state).
+
+        A kill at any moment leaves one whole checkpoint (:func:`recover_checkpoint`): the
+        new one is written into ``checkpoints.next/`` and swapped in by renaming folders.
+        (Replacing the files one by one could pair a new model and replay buffer with the
+        previous state and random streams, and the resumed run would differ.)"""
+        final, new, old = _checkpoint_folders(self.run_dir)
+        shutil.rmtree(new, ignore_errors=True)
+        new.mkdir(parents=True)
         for name, write in save.items():
-            final = folder / name
-            tmp = folder / f"tmp.{name}"
-            write(tmp)
-            os.replace(tmp, final)
+            write(new / name)
         state = {"monitor": self.state, "stats": self.stats.__dict__, "recent": self.recent}
-        tmp = folder / "tmp.state.pkl"
-        tmp.write_bytes(pickle.dumps({**state, **extra}))
-        os.replace(tmp, folder / "state.pkl")
+        (new / "state.pkl").write_bytes(pickle.dumps({**state, **extra}))
+        shutil.rmtree(old, ignore_errors=True)
+        if final.exists():
+            os.replace(final, old)
+        os.replace(new, final)
+        shutil.rmtree(old, ignore_errors=True)
 
     def restore(self, state: dict[str, Any]) -> None:
         """The counters and running statistics of a checkpoint's ``state.pkl``."""
