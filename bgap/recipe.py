@@ -41,10 +41,8 @@ from omegaconf import DictConfig
 from bgap.config import RecipeConfig, app, compose, load, validate
 from bgap.evaluate import crash_split
 from bgap.presets import selection_hint, write_preset
-from bgap.rollout import rollout
-from bgap.scenario import env_config
 from bgap.stats import t_interval
-from bgap.sweep import objective, study_name, sweep, write_outputs
+from bgap.sweep import objective, study_name, sweep, validation_episodes, write_outputs
 from bgap.vocab import CRASH_KINDS
 
 GROUPS = ("reward", "agent")
@@ -55,14 +53,6 @@ def candidates(study: optuna.Study, k: int) -> list[optuna.trial.FrozenTrial]:
     """The ``k`` finished trials with the lowest objective (ties: the earlier trial)."""
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     return sorted(done, key=lambda t: (t.value, t.number))[:k]
-
-
-def _validate_policy(tcfg, policy: Any, episodes: int) -> pd.DataFrame:
-    from bgap.train import training_config
-
-    c = training_config(tcfg)
-    seeds = range(c.val_seed, c.val_seed + episodes)
-    return rollout(env_config(c, c.mix_sampling), policy, seeds, c.backend).episodes
 
 
 def check_candidate(
@@ -91,7 +81,7 @@ def check_candidate(
         train(replace(tcfg, resume=True), progress=progress)  # reused once finished
         row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
         for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
-            ep = _validate_policy(tcfg, policy, cfg.check_episodes)
+            ep = validation_episodes(policy, tcfg, cfg.check_episodes)
             prefix = "" if name == "policy" else f"{name}_"
             row[f"{prefix}collision_pct"] = 100.0 * float(ep.crashed.mean())
             row[f"{prefix}avg_speed"] = float(ep.avg_speed.mean())

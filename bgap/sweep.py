@@ -112,12 +112,18 @@ def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, 
     return _validation(greedy(model), cfg, episodes)
 
 
-def _validation(policy, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
+def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.DataFrame:
+    """``policy`` on the first ``episodes`` validation episodes (seeds ``val_seed + k``) of
+    ``cfg``'s training traffic, its mix drawn as in training."""
     from bgap.train import training_config
 
     cfg = training_config(cfg)
     seeds = range(cfg.val_seed, cfg.val_seed + episodes)
-    rows = rollout(env_config(cfg, cfg.mix_sampling), policy, seeds, cfg.backend).episodes
+    return rollout(env_config(cfg, cfg.mix_sampling), policy, seeds, cfg.backend).episodes
+
+
+def _validation(policy, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
+    rows = validation_episodes(policy, cfg, episodes)
     return 100.0 * float(rows.crashed.mean()), float(rows.avg_speed.mean())
 
 
