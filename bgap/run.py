@@ -88,13 +88,14 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     title = f"{cfg.env.name}, behaviour {cfg.behavior.name}, {cfg.profile.name} profile"
     plot_comparison(summary, out / "comparison.png", title)
     print(format_table(summary))
+    compared = summary  # what the idle flags read: the seed-level table with several seeds
     if len(seeds) > 1:
-        across = seed_summary(episodes)
+        compared = across = seed_summary(episodes)
         across.to_csv(out / "seeds.csv", index=False)
         plot_comparison(across, out / "comparison_seeds.png", f"{title}, {len(seeds)} seeds")
         print(f"\nacross {len(seeds)} training seeds (mean and 95% interval over seeds):")
         print(format_table(across))
-    for line in idle_flags(summary if len(seeds) == 1 else seed_summary(episodes), cfg):
+    for line in idle_flags(compared, cfg):
         print(line)
     print(f"results in {out} ({time.perf_counter() - start:.0f} s)")
     return out
@@ -105,7 +106,8 @@ def seed_summary(episodes):
     interval across seeds (:func:`bgap.figures.cell_stats`), in :func:`summarize`'s columns."""
     from bgap.figures import cell_stats, parse_policies
 
-    stats, _ = cell_stats(parse_policies(episodes))
+    parsed = parse_policies(episodes)
+    stats, _ = cell_stats(parsed)
     renamed = stats.rename(
         columns={
             "family": "policy",
@@ -116,7 +118,7 @@ def seed_summary(episodes):
         }
     )
     keys = list(zip(stats.family, stats.density, stats.mix, stats.radius, strict=True))
-    pooled = parse_policies(episodes).groupby(["family", "density", "mix", "radius"])
+    pooled = parsed.groupby(["family", "density", "mix", "radius"])
     renamed["episodes"] = pooled.size().reindex(keys).to_numpy()  # all seeds' episodes
     split = pooled.apply(lambda g: pd.Series(crash_split(g))).reindex(keys)
     for column in split:
