@@ -3,6 +3,8 @@
     python -m bgap.bench env        # policy steps/s of our environment vs highway-v0
     python -m bgap.bench sim        # vectorised backend vs highway-env vs EnvPool (optional:
                                     # pip install -e ".[bench]"), both cores
+    python -m bgap.bench learn      # DQN gradient updates/s: SB3 (one training) vs the batched
+                                    # learner with K = 1, 4, 10, 20 members, dense traffic
     python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
                                     # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
 
@@ -218,15 +220,139 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     print("EnvPool has no behaviour classes (its traffic is highway-env's stock IDM).")
 
 
+def _learn_config(policy: str = "behavior_rich"):
+    """Dense traffic, the default agent at the paper's replay ratio (one update per
+    transition: ``gradient_steps=-1``)."""
+    from bgap.config import compose, validate
+
+    return validate(compose("train", ["env=dense", f"policy={policy}", "agent.gradient_steps=-1"]))
+
+
+def _sb3_rate(seconds: float) -> tuple[float, float]:
+    """Gradient updates/s and transitions/s of SB3's DQN (bgap.train's model), one training,
+    after ``learning_starts``."""
+    import tempfile
+    from pathlib import Path
+
+    import torch
+
+    from bgap.train import build_model, make_training_env
+
+    torch.set_num_threads(1)  # as bgap.train
+    cfg = _learn_config()
+    env = make_training_env(cfg, cfg.profile.n_envs, seed=0)
+    with tempfile.TemporaryDirectory() as tmp:
+        model = build_model(cfg, env, Path(tmp))
+        model.tensorboard_log = None
+        model.learn(cfg.agent.learning_starts + 200)  # warm: past learning_starts, compiled
+        updates, steps, start, chunk = (
+            model._n_updates,
+            model.num_timesteps,
+            time.perf_counter(),
+            200,
+        )
+        while time.perf_counter() - start < seconds:
+            model.learn(chunk, reset_num_timesteps=False)
+        elapsed = time.perf_counter() - start
+        rates = (model._n_updates - updates) / elapsed, (model.num_timesteps - steps) / elapsed
+    env.close()
+    return rates
+
+
+def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[float, float]:
+    """Member gradient updates/s and transitions/s of a K-member batched learner: the
+    training loop of :func:`bgap.train.train_batched` (act, simulate all members' envs in one
+    vector env, store, update) without its bookkeeping (episode statistics, checkpoints)."""
+    from bgap.agents.batched import BatchedDQN, Schedule
+    from bgap.scenario import env_config
+    from bgap.simulators import make_vector_env
+
+    cfg = _learn_config()
+    e = cfg.profile.n_envs
+    venv = make_vector_env(env_config(cfg, cfg.mix_sampling), k * e, "vector")
+    obs, _ = venv.reset(seed=list(range(k * e)))
+    space = venv.single_observation_space
+    learner = BatchedDQN(
+        cfg.agent, Schedule(e, cfg.profile.train_steps, cfg.agent.exploration_decay_steps),
+        list(range(k)), int(np.prod(space.shape)), 5, device=device,
+    )  # fmt: skip
+    members = np.arange(k)
+    obs = obs.reshape(k, e, *space.shape)
+
+    def step() -> None:
+        nonlocal obs
+        actions = learner.act(obs, members)
+        new, rewards, term, trunc, info = venv.step(actions.reshape(-1))
+        final = new.copy()
+        for b in np.flatnonzero(term | trunc):
+            final[b] = info["final_obs"][b]
+        learner.num_timesteps += e
+        shape = (k, e)
+        learner.observe(members, obs, final.reshape(k, e, -1), actions, rewards.reshape(shape),
+                        term.reshape(shape), trunc.reshape(shape))  # fmt: skip
+        obs = new.reshape(obs.shape)
+        learner.train(members)
+
+    while learner.n_updates[0] < 20:  # past learning_starts, kernels compiled
+        step()
+    updates, steps, start = (
+        learner.n_updates.sum(),
+        learner.num_timesteps.sum(),
+        time.perf_counter(),
+    )
+    while time.perf_counter() - start < seconds:
+        step()
+    elapsed = time.perf_counter() - start
+    return (learner.n_updates.sum() - updates) / elapsed, (
+        learner.num_timesteps.sum() - steps
+    ) / elapsed
+
+
+def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: int = 0) -> None:
+    """Gradient updates/s of SB3's DQN (one training) and of the batched learner with K
+    members (member-updates/s), dense traffic, one update per transition; and the wall time
+    of a study of 40 trainings x 180,000 transitions at each rate."""
+    import os
+
+    import torch
+
+    from bgap.agents.batched import default_device
+
+    threads = threads or os.cpu_count() or 1
+    study = 40 * 180_000  # transitions = updates at the paper's replay ratio
+    sb3_updates, sb3_steps = _sb3_rate(seconds)
+    torch.set_num_threads(threads)
+    device = default_device()
+    print(f"dense traffic, one gradient update per transition; batched learner on {device}, "
+          f"{threads} torch threads")  # fmt: skip
+    print(f"{'learner':<16}{'updates/s':>11}{'transitions/s':>15}{'study 40x180k':>15}")
+    print(
+        f"{'SB3 DQN':<16}{sb3_updates:>11.0f}{sb3_steps:>15.0f}{study / sb3_updates / 3600:>14.1f}h"
+    )
+    rates = {}
+    for k in ks:
+        updates, steps = _batched_rate(k, seconds, str(device))
+        rates[k] = updates
+        name = f"batched K={k}"
+        print(f"{name:<16}{updates:>11.0f}{steps:>15.0f}{study / updates / 3600:>14.1f}h")
+    if 10 in rates:
+        print(f"speedup K=10: {rates[10] / sb3_updates:.2f}x")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m bgap.bench", description=__doc__)
     parser.add_argument("what", choices=sorted(BENCHES))
     parser.add_argument("--seconds", type=float, default=10.0, help="wall time per measurement")
     parser.add_argument("--envs", type=int, default=64, help="sim: batched environments")
     parser.add_argument("--threads", type=int, default=2, help="sim: threads for both peers")
+    parser.add_argument(
+        "--members", type=int, nargs="+", default=[1, 4, 10, 20], help="learn: values of K"
+    )
     args = parser.parse_args(argv)
     if args.what == "sim":
         bench_sim(args.seconds, num_envs=args.envs, threads=args.threads)
+    elif args.what == "learn":
+        bench_learn(args.seconds, tuple(args.members))
     else:
         BENCHES[args.what](args.seconds)
 
@@ -235,6 +361,7 @@ BENCHES: dict[str, Callable[[float], None]] = {
     "env": bench_env,
     "cmetric": bench_cmetric,
     "sim": bench_sim,
+    "learn": bench_learn,
 }
 
 if __name__ == "__main__":

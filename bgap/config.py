@@ -31,7 +31,7 @@ from bgap.cmetric.params import CMetricConfig
 from bgap.errors import check
 from bgap.presets import CONF_DIR
 from bgap.scenario import EnvConfig, RewardConfig, check_config, env_config
-from bgap.vocab import BACKENDS, BASELINES, CLASSES, MIX_SAMPLING, POLICIES
+from bgap.vocab import BACKENDS, BASELINES, CLASSES, LEARNERS, MIX_SAMPLING, POLICIES
 
 
 @dataclass
@@ -200,6 +200,16 @@ class ExperimentConfig(BaseConfig):
     val_seed + k: choices are made on these, never on the test episodes (ours)."""
     workers: int = 2
     """Evaluation worker processes."""
+    learner: str = "sb3"
+    """``sb3``: Stable-Baselines3's DQN, one training per process (the reference);
+    ``batched``: every training of the command in one batched learner
+    (:mod:`bgap.agents.batched`; ``bgap.train seeds=[0,1,2]``), on CUDA when torch sees a
+    GPU."""
+    threads: int = 0
+    """torch threads of the batched learner; 0: one per core. (The SB3 learner uses 1.)"""
+    policies: list[str] = field(default_factory=list)
+    """``bgap.train``: train these policy families (each with every seed); empty:
+    ``[policy]``."""
     out: Optional[str] = None
     """``bgap.evaluate`` / ``bgap.run`` results folder; default under ``<root>/results``."""
 
@@ -215,6 +225,10 @@ class ExperimentConfig(BaseConfig):
         for b in self.baselines:
             check(b in BASELINES, "baselines", self.baselines, f"each one of {BASELINES}")
         check(self.workers >= 1, "workers", self.workers, "must be >= 1")
+        check(self.learner in LEARNERS, "learner", self.learner, f"use one of {LEARNERS}")
+        check(self.threads >= 0, "threads", self.threads, "must be >= 0 (0: one per core)")
+        for p in self.policies:
+            check(p in POLICIES, "policies", self.policies, f"each one of {POLICIES}")
         check(
             all(s >= 0 for s in self.seeds) and len(set(self.seeds)) == len(self.seeds),
             "seeds",

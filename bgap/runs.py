@@ -38,10 +38,18 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: tree}
 
 
+ADDED_LATER = {"learner": "sb3", "threads": 0, "policies": []}
+"""Settings added after run folders were first written, with the value those runs used: a
+stored config without the key is read as having it."""
+
+
 def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATILE) -> list[str]:
     """Dotted keys whose values differ between two config trees, ``ignore``d ones aside."""
     a, b = _flat(stored), _flat(current)
-    return sorted(k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore)
+    a.update({k: v for k, v in ADDED_LATER.items() if k in b and k not in a})
+    return sorted(
+        k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore
+    )
 
 
 def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = VOLATILE) -> Path:

@@ -38,6 +38,9 @@ POLICIES = ("behavior_rich", "default")
 BASELINES = ("idle", "random", "left", "rule")
 """Scripted ego policies evaluated beside trained ones (``rule``: IDM + MOBIL over the
 meta-actions, :mod:`bgap.agents.rule_based`)."""
+LEARNERS = ("sb3", "batched")
+"""Training algorithms' implementations: Stable-Baselines3's DQN (the reference, one training
+per process) and :mod:`bgap.agents.batched` (many trainings in lock step)."""
 BACKENDS = ("highway", "vector")
 """Simulators: highway-env (the reference) and bgap's vectorised port."""
 MIX_SAMPLING = ("fixed", "uniform", "paper")

@@ -90,13 +90,14 @@ def test_stock_traffic_matches_highway_v0():
     }
     ref = gym.make("highway-v0", config=settings)
     ours = make_env(make_cfg("env=sparse", "behavior=stock", "mix=0.5", "env.duration=30"))
-    ref_speed, ref_changes = _traffic_stats(ref, 20, 1000)
-    our_speed, our_changes = _traffic_stats(ours, 20, 5000)
+    # 10 episodes each: the test's 3-standard-error band is then about 1 m/s on the speed
+    ref_speed, ref_changes = _traffic_stats(ref, 10, 1000)
+    our_speed, our_changes = _traffic_stats(ours, 10, 5000)
     assert _within_noise(ref_speed, our_speed), (ref_speed.mean(), our_speed.mean())
     assert _within_noise(ref_changes, our_changes), (ref_changes.mean(), our_changes.mean())
     # and the stock preset is not the paper's traffic
     paper = make_env(make_cfg("env=sparse", "behavior=paper", "mix=0.5", "env.duration=30"))
-    paper_speed, _ = _traffic_stats(paper, 5, 5000)
+    paper_speed, _ = _traffic_stats(paper, 3, 5000)
     assert paper_speed.mean() > our_speed.mean() + 3.0
 
 

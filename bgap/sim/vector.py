@@ -251,28 +251,31 @@ class VectorHighway(gym.vector.VectorEnv):
     def scene(self, b: int) -> Scene:
         return Scene(self.f[b].copy(), self.g[b].copy(), self.p[b].copy(), int(self.steps[b]))
 
-    def state_dict(self) -> dict[str, Any]:
+    def state_dict(self, envs: Sequence[int] | None = None) -> dict[str, Any]:
         """Everything the next steps depend on (every env's state and random streams), to
-        resume a training exactly (:meth:`load_state_dict`)."""
+        resume a training exactly (:meth:`load_state_dict`); ``envs``: those envs only (one
+        member's share of a batched learner's environments)."""
+        idx = list(range(self.num_envs)) if envs is None else list(envs)
         return {
             "arrays": {
-                k: getattr(self, k).copy() for k in ("f", "g", "p", "steps", "n_aggressive")
+                k: getattr(self, k)[idx].copy() for k in ("f", "g", "p", "steps", "n_aggressive")
             },
-            "rngs": [r.bit_generator.state for r in self._rngs],
-            "mix_rngs": [r.bit_generator.state for r in self._mix_rngs],
+            "rngs": [self._rngs[b].bit_generator.state for b in idx],
+            "mix_rngs": [self._mix_rngs[b].bit_generator.state for b in idx],
         }
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def load_state_dict(self, state: dict[str, Any], envs: Sequence[int] | None = None) -> None:
+        """A :meth:`state_dict` put back, into every env or into ``envs``."""
+        idx = list(range(self.num_envs)) if envs is None else list(envs)
         for key, value in state["arrays"].items():
-            if getattr(self, key).shape != value.shape:
-                raise ValueError(
-                    f"saved {key} has shape {value.shape}, this env {getattr(self, key).shape}"
-                )
-            getattr(self, key)[...] = value
+            target = getattr(self, key)[idx]
+            if target.shape != value.shape:
+                raise ValueError(f"saved {key} has shape {value.shape}, this env {target.shape}")
+            getattr(self, key)[idx] = value
         for rngs, saved in ((self._rngs, state["rngs"]), (self._mix_rngs, state["mix_rngs"])):
-            rngs[:] = [np.random.default_rng() for _ in saved]
-            for rng, bit_state in zip(rngs, saved, strict=True):
-                rng.bit_generator.state = bit_state
+            for b, bit_state in zip(idx, saved, strict=True):
+                rngs[b] = np.random.default_rng()
+                rngs[b].bit_generator.state = bit_state
         self._observe()
 
     # ------------------------------------------------------------------ gymnasium API
@@ -299,6 +302,11 @@ class VectorHighway(gym.vector.VectorEnv):
             info["reset_frames"] = initial_states(self)
             info["labels"] = self.g[:, :, LABEL].copy()
         return obs.copy(), info
+
+    def observations(self) -> np.ndarray:
+        """Every env's current observation (after :meth:`load_state_dict`, where no reset or
+        step returned one)."""
+        return self._observe().copy()
 
     def step(
         self, actions: np.ndarray
