@@ -242,11 +242,13 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     """Named policies of ``bgap.evaluate``: each model (named by its run folder) and baselines.
 
-    A folder without ``model.zip`` stands for every run folder inside it (a pipeline's runs)."""
+    A folder without ``model.zip`` stands for every run folder inside it or one level further
+    down (a pipeline's runs: one folder per density, one run folder per training)."""
     models: list[Path] = []
     for m in map(Path, cfg.models):
         if m.is_dir() and not (m / "model.zip").exists():
-            found = sorted(p.parent for p in m.glob("*/model.zip"))
+            zips = [*m.glob("*/model.zip"), *m.glob("*/*/model.zip")]
+            found = sorted(p.parent for p in zips if p.parent.name != "checkpoints")
             if not found:
                 raise FileNotFoundError(f"no model.zip in {m} or its subfolders")
             models.extend(found)

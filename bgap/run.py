@@ -11,7 +11,7 @@ the scripted baselines on identical seeded episodes at the chosen mix and radius
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -28,7 +28,7 @@ from bgap.evaluate import (
     write_results,
 )
 from bgap.runs import VOLATILE, digest, save_run_metadata
-from bgap.train import run_dir_for, train, training_config
+from bgap.train import run_dir_for, train, train_batched, training_config
 from bgap.vocab import POLICIES
 
 
@@ -63,21 +63,27 @@ def _exclusive(run_dir: Path):
 def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     start = time.perf_counter()
     seeds = cfg.seeds or [cfg.seed]
+    pairs = [(seed, policy) for seed in seeds for policy in POLICIES]
+    configs = [training_config(replace(cfg, seed=s, resume=True), p) for s, p in pairs]
+    dirs = [run_dir_for(c) for c in configs]
+    # Parallel jobs of a multirun can need the same model (the default policy of a density):
+    # one trains it, the others wait for it and reuse it. (Locks taken in one order.)
+    with ExitStack() as locks:
+        for d in sorted(set(dirs)):
+            locks.enter_context(_exclusive(d))
+        for (seed, policy), d in zip(pairs, dirs, strict=True):
+            cached = (d / "model.zip").exists()
+            print(f"[{policy} s{seed}] {'reusing' if cached else 'training'} {d}")
+        # resume=true: a training this command started and was interrupted continues
+        if cfg.learner == "batched":  # every training of the command in one learner
+            dirs = train_batched(configs)
+        else:
+            dirs = [train(c) for c in configs]
     models = {}
-    for seed in seeds:
-        for policy in POLICIES:
-            pcfg = training_config(replace(cfg, seed=seed), policy)
-            run_dir = run_dir_for(pcfg)
-            # Parallel jobs of a multirun can need the same model (the default policy of a
-            # density): one trains it, the others wait for it and reuse it.
-            with _exclusive(run_dir):
-                cached = (run_dir / "model.zip").exists()
-                print(f"[{policy} s{seed}] {'reusing' if cached else 'training'} {run_dir}")
-                # resume=true: a training this command started and was interrupted continues
-                model = str(train(replace(pcfg, resume=True)) / "model.zip")
-            # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.
-            name = policy if len(seeds) == 1 else f"{cfg.env.name}-{policy}-s{seed}"
-            models[name] = model
+    for (seed, policy), d in zip(pairs, dirs, strict=True):
+        # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.
+        name = policy if len(seeds) == 1 else f"{cfg.env.name}-{policy}-s{seed}"
+        models[name] = str(d / "model.zip")
     out = results_dir(cfg)
     if dcfg is not None:
         save_run_metadata(out, dcfg)

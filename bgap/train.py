@@ -329,8 +329,10 @@ def train_batched(cfgs: Sequence[ExperimentConfig], progress: bool = True) -> li
                     f"({c.policy}) differs from seed {first.seed} ({first.policy})"
                 )
     dirs = [run_dir_for(c) for c in cfgs]
-    if first.run_dir and len(cfgs) > 1:  # one folder per member under run_dir
-        dirs = [Path(first.run_dir) / run_name(c) for c in cfgs]
+    if first.run_dir and len(cfgs) > 1:
+        # one folder per member under run_dir, named as the pipeline names its runs (the
+        # settings are in each folder's config.yaml, which refuses another training)
+        dirs = [Path(first.run_dir) / f"{c.env.name}-{c.policy}-s{c.seed}" for c in cfgs]
     if len(set(dirs)) < len(dirs):
         raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
     opened = [open_run_dir(c, d) for c, d in zip(cfgs, dirs, strict=True)]

@@ -36,7 +36,7 @@ def pipeline(tmp_path_factory) -> Path:
     for made_by_a_stage in ("behavior/calibrated", "reward/recipe", "agent/recipe"):
         (repo / f"bgap/conf/{made_by_a_stage}.yaml").unlink(missing_ok=True)
     params = yaml.safe_load((repo / "params.yaml").read_text())
-    params.update(profile="tiny", seeds=[0], densities=["sparse"], grid="tiny", eval_episodes=4)
+    params.update(profile="tiny", seeds="[0]", densities=["sparse"], grid="tiny", eval_episodes=4)
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0]"
@@ -67,8 +67,8 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     from bgap.presets import load_preset
 
     for name in (
-        "outputs/pipeline/runs/sparse-behavior_rich-s0/model.zip",
-        "outputs/pipeline/runs/sparse-default-s0/model.zip",
+        "outputs/pipeline/runs/sparse/sparse-behavior_rich-s0/model.zip",
+        "outputs/pipeline/runs/sparse/sparse-default-s0/model.zip",
         "results/parity/parity.csv",
         "dvc.lock",
     ):
