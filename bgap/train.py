@@ -312,12 +312,16 @@ def member_configs(cfg: ExperimentConfig) -> list[ExperimentConfig]:
     ]
 
 
-def train_batched(cfgs: Sequence[ExperimentConfig], progress: bool = True) -> list[Path]:
+def train_batched(
+    cfgs: Sequence[ExperimentConfig], progress: bool = True, sb3_streams: bool = False
+) -> list[Path]:
     """Train every config of ``cfgs`` (members: same agent, profile and backend; any policy
     family, seed and traffic) in one :class:`~bgap.agents.batched.BatchedDQN`; each member
     gets the run folder :func:`train` writes (config, command, ``tb/``, ``evaluations.csv``,
     checkpoints, an SB3-loadable ``model.zip``). Finished members are reused, unfinished
-    ones resumed (``resume=true``) from their own checkpoints; returns the run folders."""
+    ones resumed (``resume=true``) from their own checkpoints; returns the run folders.
+    ``sb3_streams``: one member drawing from SB3's random streams
+    (:class:`~bgap.agents.batched.BatchedDQN`), to compare a whole training with SB3's."""
     check(len(cfgs) >= 1, "seeds", [], "the batched learner needs at least one training")
     cfgs = [replace(training_config(c), learner="batched") for c in cfgs]
     first = cfgs[0]
@@ -346,11 +350,15 @@ def train_batched(cfgs: Sequence[ExperimentConfig], progress: bool = True) -> li
             raise ConfigError(
                 f"{d} holds a checkpoint of the sb3 learner: resume it with learner=sb3"
             )
-    return _train_members(cfgs, dirs, resuming, progress)
+    return _train_members(cfgs, dirs, resuming, progress, sb3_streams)
 
 
 def _train_members(
-    cfgs: list[ExperimentConfig], dirs: list[Path], resuming: list[bool], progress: bool
+    cfgs: list[ExperimentConfig],
+    dirs: list[Path],
+    resuming: list[bool],
+    progress: bool,
+    sb3_streams: bool = False,
 ) -> list[Path]:
     p, first = cfgs[0].profile, cfgs[0]
     e = p.n_envs
@@ -379,7 +387,10 @@ def _train_members(
     schedule = Schedule(
         e, p.train_steps, p.exploration_decay_steps or first.agent.exploration_decay_steps
     )
-    learner = BatchedDQN(first.agent, schedule, [c.seed for c in cfgs], obs_dim, n_actions)
+    seeds = [c.seed for c in cfgs]
+    learner = BatchedDQN(first.agent, schedule, seeds, obs_dim, n_actions, sb3_streams=sb3_streams)
+    if sb3_streams:
+        np.random.seed(first.seed)  # noqa: NPY002 (SB3's set_random_seed)
     writers = [SummaryWriter(str(d / "tb" / "batched_1")) for d in dirs]
     monitors = []
     for k, (c, d) in enumerate(zip(cfgs, dirs, strict=True)):

@@ -40,6 +40,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -172,12 +173,31 @@ class StackedReplay:
         self.full[members] |= self.pos[members] == 0
 
     def sample(
-        self, members: np.ndarray, batch: int, betas: np.ndarray, rngs: list[np.random.Generator]
+        self,
+        members: np.ndarray,
+        batch: int,
+        betas: np.ndarray,
+        rngs: list[np.random.Generator] | None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Flat indices (len(members), batch) drawn with P(i) = p_i / sum p, and the
         importance weights (N P(i))^-beta / max_j (N P(j))^-beta (uniform sampling and
-        weights 1 without prioritisation)."""
+        weights 1 without prioritisation). ``rngs=None``: one member, drawn from numpy's
+        global stream exactly as :class:`bgap.agents.per.PrioritizedReplayBuffer` (or SB3's
+        ``ReplayBuffer``) draws."""
         filled = np.where(self.full[members], self.size, self.pos[members]) * self.n_envs
+        if rngs is None and not self.prioritized:  # SB3's ReplayBuffer.sample
+            positions = self.size if self.full[members[0]] else self.pos[members[0]]
+            rows = np.random.randint(0, positions, size=batch)  # noqa: NPY002
+            envs = np.random.randint(0, high=self.n_envs, size=(batch,))  # noqa: NPY002
+            return (rows * self.n_envs + envs)[None], np.ones((1, batch))
+        if rngs is None:
+            (k,), (n,) = members, filled
+            probs = self.priorities[k].reshape(-1)[:n]
+            probs = probs / probs.sum()
+            flat = np.random.choice(n, size=batch, p=probs)  # noqa: NPY002 (as SB3's path)
+            weights = (n * probs[flat]) ** (-betas[0])
+            weights /= (n * probs.min()) ** (-betas[0])
+            return flat[None], weights[None]
         u = np.stack([rngs[k].random(batch) for k in members])  # each member's own stream
         if not self.prioritized:
             return (u * filled[:, None]).astype(np.int64), np.ones((len(members), batch))
@@ -238,6 +258,10 @@ class BatchedDQN:
         seeds: one per member.
         obs_dim, n_actions: flattened observation size and number of discrete actions.
         device: torch device (default: CUDA when available).
+        sb3_streams: draw exploration and replay samples from the random streams SB3's DQN
+            uses (numpy's global stream, seeded by the caller, and an action space seeded
+            with the seed) instead of the member's own: one member only, for comparing a
+            whole training with SB3's step for step (tests; no resume).
     """
 
     def __init__(
@@ -248,8 +272,10 @@ class BatchedDQN:
         obs_dim: int,
         n_actions: int,
         device: torch.device | str | None = None,
+        sb3_streams: bool = False,
     ) -> None:
         check(len(seeds) >= 1, "seeds", seeds, "a batched learner needs at least one member")
+        check(not sb3_streams or len(seeds) == 1, "seeds", seeds, "sb3_streams: one member")
         check(agent.train_freq == 1, "agent.train_freq", agent.train_freq,
               "the batched learner trains after every vector step (train_freq=1)")  # fmt: skip
         self.agent, self.schedule, self.seeds = agent, schedule, list(seeds)
@@ -271,6 +297,9 @@ class BatchedDQN:
         self.last_loss = np.full(self.k, np.nan)
         self.action_rngs = [np.random.default_rng([s, 1]) for s in seeds]
         self.replay_rngs = [np.random.default_rng([s, 2]) for s in seeds]
+        self.sb3_streams = sb3_streams
+        self.action_space = gym.spaces.Discrete(n_actions)
+        self.action_space.seed(seeds[0])
 
     # ------------------------------------------------------------------ acting
     def _tensor(self, array: np.ndarray, dtype=torch.float32) -> torch.Tensor:
@@ -291,6 +320,11 @@ class BatchedDQN:
         if warm[members].any():
             actions[:] = self.greedy(obs)
         for k in members:
+            if self.sb3_streams:  # SB3's _sample_action and DQN.predict, draw for draw
+                coin = warm[k] and np.random.rand() < self.exploration_rate[k]  # noqa: NPY002
+                if not warm[k] or coin:
+                    actions[k] = [self.action_space.sample() for _ in range(self.n_envs)]
+                continue
             rng = self.action_rngs[k]
             if not warm[k] or rng.random() < self.exploration_rate[k]:
                 actions[k] = rng.integers(self.n_actions, size=self.n_envs)
@@ -337,8 +371,8 @@ class BatchedDQN:
         betas = self.replay.beta0 + frac * (1.0 - self.replay.beta0)
         losses = []
         for _ in range(self.gradient_steps()):
-            flat, weights = self.replay.sample(members, self.agent.batch_size, betas,
-                                               self.replay_rngs)  # fmt: skip
+            rngs = None if self.sb3_streams else self.replay_rngs
+            flat, weights = self.replay.sample(members, self.agent.batch_size, betas, rngs)
             batch = self.replay.gather(members, flat)
             loss, td = self.update(batch, weights, members)
             self.replay.update_priorities(members, flat, td)
