@@ -136,6 +136,7 @@ def _worker(tmp_path: Path, url: str, trials: int, study: str) -> subprocess.Pop
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
+@pytest.mark.slow  # ~40 s; the killed-worker test below runs a worker on PostgreSQL by default
 def test_two_workers_share_one_postgres_study(tmp_path, postgres):
     workers = [_worker(tmp_path, postgres, 4, "shared") for _ in range(2)]
     for w in workers:
