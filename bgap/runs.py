@@ -47,9 +47,7 @@ def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATI
     """Dotted keys whose values differ between two config trees, ``ignore``d ones aside."""
     a, b = _flat(stored), _flat(current)
     a.update({k: v for k, v in ADDED_LATER.items() if k in b and k not in a})
-    return sorted(
-        k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore
-    )
+    return sorted(k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore)
 
 
 def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = VOLATILE) -> Path:

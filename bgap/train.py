@@ -343,14 +343,15 @@ def train_batched(
     todo = [i for i, (_, status) in enumerate(opened) if status != "finished"]
     if not todo:
         return dirs
-    cfgs, dirs = [cfgs[i] for i in todo], [dirs[i] for i in todo]
     resuming = [opened[i][1] == "resume" for i in todo]
-    for d, res in zip(dirs, resuming, strict=True):
-        if res and not (d / "checkpoints" / "learner.pt").exists():
+    for i, res in zip(todo, resuming, strict=True):
+        if res and not (dirs[i] / "checkpoints" / "learner.pt").exists():
             raise ConfigError(
-                f"{d} holds a checkpoint of the sb3 learner: resume it with learner=sb3"
+                f"{dirs[i]} holds a checkpoint of the sb3 learner: resume it with learner=sb3"
             )
-    return _train_members(cfgs, dirs, resuming, progress, sb3_streams)
+    _train_members([cfgs[i] for i in todo], [dirs[i] for i in todo], resuming, progress,
+                   sb3_streams)  # fmt: skip
+    return dirs  # every member's, the finished ones' too
 
 
 def _train_members(

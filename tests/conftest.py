@@ -16,6 +16,19 @@ def pytest_sessionstart(session) -> None:
         warm_compiled_kernels()
 
 
+LONG_FILES = ("test_pipeline.py", "test_install.py", "test_sweep.py")
+"""Test files that take a minute or more: collected first, so that pytest-xdist's
+``--dist loadfile`` starts them at once instead of leaving one to run alone at the end."""
+
+
+def pytest_collection_modifyitems(session, config, items) -> None:
+    def rank(item) -> int:
+        name = item.path.name
+        return LONG_FILES.index(name) if name in LONG_FILES else len(LONG_FILES)
+
+    items.sort(key=rank)  # stable: the order within and among the other files is kept
+
+
 def make_cfg(*overrides: str) -> SimulateConfig:
     """A validated config composed from conf/ exactly as the command line would."""
     return validate(compose("simulate", list(overrides)))

@@ -307,12 +307,14 @@ def test_training_on_the_vector_backend_transfers_to_highway_env(tmp_path):
         assert s.loc[backend, "collision_pct"] < s.loc["random", "collision_pct"], s
 
 
+@pytest.mark.parametrize("learner", ["batched", "sb3"])
 def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_trainings(
-    tmp_path, capsys
+    tmp_path, capsys, learner
 ):
     from bgap.run import run
 
     cfg = exp_cfg(
+        f"learner={learner}",
         "env=sparse",
         "backend=vector",
         "profile=tiny",
