@@ -36,7 +36,6 @@ their algorithm, not in their random draws.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -480,11 +479,3 @@ class BatchedDQN:
             getattr(self, name)[k] = value
         self.action_rngs[k].bit_generator.state = state["rngs"]["action"]
         self.replay_rngs[k].bit_generator.state = state["rngs"]["replay"]
-
-
-def total_updates(steps: int, agent: AgentConfig, n_envs: int) -> int:
-    """Gradient updates a training of ``steps`` environment steps makes (SB3's counting)."""
-    per_step = agent.gradient_steps if agent.gradient_steps >= 0 else n_envs
-    vector_steps = math.ceil(steps / n_envs)
-    warm = sum(1 for i in range(1, vector_steps + 1) if i * n_envs > agent.learning_starts)
-    return warm * per_step
