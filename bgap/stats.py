@@ -1,7 +1,9 @@
 """Confidence intervals, in one place for evaluation, figures and the parity study.
 
 Rates get Wilson score intervals (never of zero width, also at 0 or n events); means get
-Student t intervals.
+Student t intervals; differences between policies whose independent units are training
+seeds get a two-level bootstrap (:func:`seed_bootstrap_diff`); a table of claims gets Holm's
+correction (:func:`holm`).
 """
 
 from __future__ import annotations
@@ -45,3 +47,48 @@ def mean_interval(x: np.ndarray) -> tuple[float, float]:
     if len(x) < 2:
         return float(np.mean(x)), float(np.mean(x))
     return t_interval(x)
+
+
+def seed_bootstrap_diff(
+    a_events: np.ndarray,
+    a_episodes: np.ndarray,
+    b_events: np.ndarray,
+    b_episodes: np.ndarray,
+    rng: np.random.Generator,
+    draws: int = 2000,
+) -> tuple[float, float, float, float]:
+    """Difference of two arms' mean event rates (a - b) when training seeds are the
+    independent units: ``a_events[i]`` events in ``a_episodes[i]`` episodes for training seed
+    i of arm a (likewise b; the arms' seeds are unrelated, so nothing is paired).
+
+    Two-level bootstrap: each draw resamples each arm's seeds with replacement, then each
+    drawn seed's episodes (binomially, at that seed's observed rate), and averages the
+    seeds' rates. Returns the observed difference, the 95% percentile interval and a
+    two-sided bootstrap p-value (twice the smaller tail beyond 0). Coverage is checked by
+    simulation in ``tests/test_stats.py`` (10 seeds x 100 episodes per arm)."""
+
+    def arm(events: np.ndarray, episodes: np.ndarray) -> np.ndarray:
+        events, episodes = np.asarray(events), np.asarray(episodes)
+        pick = rng.integers(len(events), size=(draws, len(events)))
+        n = episodes[pick]
+        return (rng.binomial(n, events[pick] / n) / n).mean(axis=1)
+
+    observed = float(
+        np.mean(np.asarray(a_events) / a_episodes) - np.mean(np.asarray(b_events) / b_episodes)
+    )
+    d = arm(a_events, a_episodes) - arm(b_events, b_episodes)
+    lo, hi = np.percentile(d, [2.5, 97.5])
+    p = min(1.0, 2 * min(float(np.mean(d <= 0)), float(np.mean(d >= 0))))
+    return observed, float(lo), float(hi), p
+
+
+def holm(pvalues: np.ndarray) -> np.ndarray:
+    """Holm's step-down adjusted p-values (family-wise error control over a table of
+    claims): the k-th smallest of m p-values is multiplied by m - k + 1, then made
+    non-decreasing in that order and capped at 1."""
+    p = np.asarray(pvalues, dtype=float)
+    order = np.argsort(p)
+    scaled = p[order] * (len(p) - np.arange(len(p)))
+    adjusted = np.empty_like(p)
+    adjusted[order] = np.minimum(1.0, np.maximum.accumulate(scaled))
+    return adjusted
