@@ -266,6 +266,7 @@ def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[fl
     from bgap.agents.batched import BatchedDQN, Schedule
     from bgap.scenario import env_config
     from bgap.simulators import make_vector_env
+    from bgap.train import final_observations
 
     cfg = _learn_config()
     e = cfg.profile.n_envs
@@ -283,9 +284,7 @@ def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[fl
         nonlocal obs
         actions = learner.act(obs, members)
         new, rewards, term, trunc, info = venv.step(actions.reshape(-1))
-        final = new.copy()
-        for b in np.flatnonzero(term | trunc):
-            final[b] = info["final_obs"][b]
+        final = final_observations(new, term | trunc, info)
         learner.num_timesteps += e
         shape = (k, e)
         learner.observe(members, obs, final.reshape(k, e, -1), actions, rewards.reshape(shape),

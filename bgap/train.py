@@ -360,7 +360,7 @@ def _train_members(
     resuming: list[bool],
     progress: bool,
     sb3_streams: bool = False,
-) -> list[Path]:
+) -> None:
     p, first = cfgs[0].profile, cfgs[0]
     e = p.n_envs
     if first.threads:
@@ -494,10 +494,7 @@ def _train_members(
                 infos: list[dict[str, Any]] = [{} for _ in cfgs]
                 for g in groups:
                     o, r, term, trunc, info = g.venv.step(actions[g.members].reshape(-1))
-                    done = term | trunc
-                    final = o.copy()
-                    for b in np.flatnonzero(done):
-                        final[b] = info["final_obs"][b]
+                    final = final_observations(o, term | trunc, info)
                     for pos, k in enumerate(g.members):
                         envs = g.envs_of(pos)
                         new_obs[k], next_obs[k], rewards[k] = o[envs], final[envs], r[envs]
@@ -541,7 +538,16 @@ def _train_members(
         bar.close()
         for g in groups:
             g.venv.close()
-    return dirs
+
+
+def final_observations(obs: np.ndarray, done: np.ndarray, info: dict[str, Any]) -> np.ndarray:
+    """The observations a vector step ended in: ``obs``, except that an env reset in that
+    step ends in its finished episode's last observation (``info["final_obs"]``, the
+    simulators' same-step auto-reset), which is what a replay buffer stores as next state."""
+    final = obs.copy()
+    for b in np.flatnonzero(done):
+        final[b] = info["final_obs"][b]
+    return final
 
 
 def _member_info(info: dict[str, Any], envs: list[int]) -> dict[str, Any]:
