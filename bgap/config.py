@@ -31,7 +31,16 @@ from bgap.cmetric.params import CMetricConfig
 from bgap.errors import check
 from bgap.presets import CONF_DIR
 from bgap.scenario import EnvConfig, RewardConfig, check_config, env_config
-from bgap.vocab import BACKENDS, BASELINES, CLASSES, LEARNERS, MIX_SAMPLING, POLICIES
+from bgap.vocab import (
+    BACKENDS,
+    BASELINES,
+    CHECKPOINTS,
+    CLASSES,
+    LEARNERS,
+    MIX_SAMPLING,
+    POLICIES,
+    SPEED_FLOOR,
+)
 
 
 @dataclass
@@ -212,10 +221,21 @@ class ExperimentConfig(BaseConfig):
     ``[policy]``."""
     out: Optional[str] = None
     """``bgap.evaluate`` / ``bgap.run`` results folder; default under ``<root>/results``."""
+    checkpoint: str = "best"
+    """Which parameters of a training are evaluated: ``best``, the checkpoint its periodic
+    validations chose (``best_model.zip``: fewest validation collisions at >= 0.9 x idle's
+    speed, :func:`bgap.stats.constrained_score`; ours, the paper keeps none), or ``last``, the
+    final parameters (``model.zip``). A run without validations has only the last."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check(self.policy in POLICIES, "policy", self.policy, f"use one of {POLICIES}")
+        check(
+            self.checkpoint in CHECKPOINTS,
+            "checkpoint",
+            self.checkpoint,
+            f"use one of {CHECKPOINTS}",
+        )
         check(
             self.mix_sampling in MIX_SAMPLING,
             "mix_sampling",
@@ -380,7 +400,7 @@ class SweepConfig(ExperimentConfig):
     speed_weight: float = 2.0
     """Collision percentage points one m/s of average speed is worth (single mode, and the
     choice of the written preset on a Pareto front)."""
-    speed_floor: float = 0.9
+    speed_floor: float = SPEED_FLOOR
     """Constrained mode: the fraction of idle's mean speed (same validation episodes) a
     policy must reach to count as feasible."""
     prune_every: int = 0

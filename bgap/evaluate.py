@@ -29,6 +29,7 @@ from tqdm import tqdm
 from bgap.config import ExperimentConfig, app, load
 from bgap.errors import ConfigError
 from bgap.rollout import as_policy, rollout
+from bgap.runs import MODEL, model_file
 from bgap.scenario import env_config, env_preset
 from bgap.stats import t_interval, wilson_interval
 from bgap.vocab import BASELINES, CRASH_KINDS
@@ -242,19 +243,25 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     """Named policies of ``bgap.evaluate``: each model (named by its run folder) and baselines.
 
-    A folder without ``model.zip`` stands for every run folder inside it or one level further
-    down (a pipeline's runs: one folder per density, one run folder per training)."""
-    models: list[Path] = []
+    A run folder contributes the model ``checkpoint`` names (:func:`bgap.runs.model_file`);
+    a folder without ``model.zip`` stands for every run folder below it (a pipeline's runs:
+    one folder per arm and density, one run folder per training), each named by its path
+    below that folder."""
+    specs: dict[str, str] = {}
     for m in map(Path, cfg.models):
-        if m.is_dir() and not (m / "model.zip").exists():
-            zips = [*m.glob("*/model.zip"), *m.glob("*/*/model.zip")]
-            found = sorted(p.parent for p in zips if p.parent.name != "checkpoints")
+        if m.is_dir() and not (m / MODEL).exists():
+            found = sorted(
+                p.parent for p in m.rglob(MODEL) if not p.parent.name.startswith("checkpoints")
+            )
             if not found:
-                raise FileNotFoundError(f"no model.zip in {m} or its subfolders")
-            models.extend(found)
+                raise FileNotFoundError(f"no {MODEL} in {m} or its subfolders")
+            # named by their path below m: <arm>/<density>/<density>-<family>-s<seed>
+            specs.update({d.relative_to(m).as_posix(): str(model_file(d, cfg.checkpoint))
+                          for d in found})  # fmt: skip
+        elif m.is_dir():
+            specs[m.name] = str(model_file(m, cfg.checkpoint))
         else:
-            models.append(m)
-    specs = {m.name if m.is_dir() else m.parent.name: str(m) for m in models}
+            specs[m.parent.name] = str(m)
     specs.update({b: b for b in cfg.baselines if b in BASELINES})
     return specs
 

@@ -27,7 +27,8 @@ from bgap.evaluate import (
     summarize,
     write_results,
 )
-from bgap.runs import VOLATILE, digest, save_run_metadata
+from bgap.runs import VOLATILE, digest, model_file, save_run_metadata
+from bgap.stats import beats_idle
 from bgap.train import run_dir_for, train, train_batched, training_config
 from bgap.vocab import POLICIES
 
@@ -83,7 +84,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     for (seed, policy), d in zip(pairs, dirs, strict=True):
         # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.
         name = policy if len(seeds) == 1 else f"{cfg.env.name}-{policy}-s{seed}"
-        models[name] = str(d / "model.zip")
+        models[name] = str(model_file(d, cfg.checkpoint))
     out = results_dir(cfg)
     if dcfg is not None:
         save_run_metadata(out, dcfg)
@@ -146,7 +147,7 @@ def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
         if not own or key not in idle.index:
             continue
         i = idle.loc[key]
-        beats = r.collision_pct < i.collision_pct and r.avg_speed >= 0.9 * i.avg_speed
+        beats = beats_idle(r.collision_pct, r.avg_speed, i.collision_pct, i.avg_speed)
         verdict = "beats idle" if beats else "FLAGGED: does not beat idle"
         lines.append(
             f"{r.policy} in its own traffic (mix {r.mix:g}): {r.collision_pct:.1f}% collisions, "

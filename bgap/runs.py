@@ -38,7 +38,19 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: tree}
 
 
-ADDED_LATER = {"learner": "sb3", "threads": 0, "policies": []}
+MODEL, BEST_MODEL = "model.zip", "best_model.zip"
+"""A training's final parameters, and the checkpoint its periodic validations chose
+(:class:`bgap.agents.monitor.TrainingMonitor`)."""
+
+
+def model_file(run_dir: str | Path, checkpoint: str = "best") -> Path:
+    """The model of a run folder that ``checkpoint`` names: ``best`` is the validation-chosen
+    one where the training validated (else the final one), ``last`` the final one."""
+    best = Path(run_dir) / BEST_MODEL
+    return best if checkpoint == "best" and best.exists() else Path(run_dir) / MODEL
+
+
+ADDED_LATER = {"learner": "sb3", "threads": 0, "policies": [], "checkpoint": "last"}
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""
 

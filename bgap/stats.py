@@ -3,7 +3,9 @@
 Rates get Wilson score intervals (never of zero width, also at 0 or n events); means get
 Student t intervals; differences between policies whose independent units are training
 seeds get a two-level bootstrap (:func:`seed_bootstrap_diff`); a table of claims gets Holm's
-correction (:func:`holm`).
+correction (:func:`holm`). The rule that judges a policy against the idle ego is here too
+(:func:`constrained_score`, :func:`beats_idle`), so sweeps, checkpoint selection and the
+results' flags apply one definition.
 """
 
 from __future__ import annotations
@@ -12,6 +14,8 @@ import math
 
 import numpy as np
 from scipy.stats import t as student_t
+
+from bgap.vocab import SPEED_FLOOR
 
 Z95 = 1.959964
 """Standard normal quantile of a two-sided 95% interval."""
@@ -92,3 +96,26 @@ def holm(pvalues: np.ndarray) -> np.ndarray:
     adjusted = np.empty_like(p)
     adjusted[order] = np.minimum(1.0, np.maximum.accumulate(scaled))
     return adjusted
+
+
+def constrained_score(
+    collision_pct: float, speed: float, idle_speed: float, floor: float = SPEED_FLOOR
+) -> float:
+    """Lower is better: the collision % of a policy whose mean speed reaches ``floor`` x idle's
+    on the same episodes; below that, 100 + the shortfall in % of the floor, so any policy fast
+    enough ranks above any that is not. Used by the constrained sweeps, the recipe's choice
+    and the selection of a training's best checkpoint."""
+    need = floor * idle_speed
+    return collision_pct if speed >= need else 100.0 + 100.0 * (need - speed) / need
+
+
+def beats_idle(
+    collision_pct: float,
+    speed: float,
+    idle_collision_pct: float,
+    idle_speed: float,
+    floor: float = SPEED_FLOOR,
+) -> bool:
+    """Fewer collisions than idle at a mean speed of at least ``floor`` x idle's (the same
+    episodes): a trained policy that does not is flagged, never silently compared."""
+    return collision_pct < idle_collision_pct and speed >= floor * idle_speed

@@ -36,6 +36,7 @@ from bgap.presets import SWEEPS_DIR, selection_hint, write_preset
 from bgap.rollout import baseline, greedy, rollout
 from bgap.runs import VOLATILE, digest
 from bgap.scenario import env_config
+from bgap.stats import constrained_score
 from bgap.studies import open_storage, sqlite_url
 
 
@@ -134,8 +135,7 @@ def objective(cfg: SweepConfig, crash: float, speed: float, idle_speed: float) -
     policy fast enough ranks above any that is not (safety bought by crawling is no win)."""
     if cfg.mode == "single":
         return crash - cfg.speed_weight * speed
-    floor = cfg.speed_floor * idle_speed
-    return crash if speed >= floor else 100.0 + 100.0 * (floor - speed) / floor
+    return constrained_score(crash, speed, idle_speed, cfg.speed_floor)
 
 
 def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) -> Any:

@@ -4,8 +4,10 @@ One run folder holds everything (rl-baselines3-zoo style): ``model.zip``, ``conf
 (resolved), ``command.txt``, ``tb/`` (TensorBoard: episode reward, collision rate, average
 speed, lane changes, epsilon, loss, periodic evaluations), ``checkpoints/`` (the latest
 model, replay buffer, counters and, on the vector backend, the environments' and random
-streams' state, every ``profile.checkpoint_every`` steps and on Ctrl-C) and
-``evaluations.csv``. ``resume=true`` continues from the checkpoint: exactly as if never
+streams' state, every ``profile.checkpoint_every`` steps and on Ctrl-C),
+``evaluations.csv`` and ``learning_curves.png`` (the periodic validations) and
+``best_model.zip`` with ``best.json`` (the validation-chosen checkpoint that evaluation uses
+by default, ``checkpoint=best``). ``resume=true`` continues from the checkpoint: exactly as if never
 interrupted on the vector backend; on highway-env (whose environments are not saved) the
 environments restart on fresh seeds.
 
@@ -20,7 +22,7 @@ import pickle
 import signal
 import threading
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -54,7 +56,7 @@ from bgap.simulators import make_vector_env
 
 NOT_LEARNT = (
     *VOLATILE, "models", "baselines", "grid", "eval_seed", "val_seed", "out", "seeds",
-    "policies", "threads",
+    "policies", "threads", "checkpoint",
 )  # fmt: skip
 """Settings of a training's config that do not change what it learns (run folder checks).
 (``val_seed`` only moves the periodic evaluations' episodes; ``eval_seed`` the tests'.)"""
@@ -276,11 +278,14 @@ class _DummyEnv(gym.Env):
 
 
 class _MemberPolicy:
-    """Member k of a batched learner seen as a model (``predict``, ``_n_updates``) by
-    :class:`~bgap.agents.monitor.TrainingMonitor`'s periodic evaluations."""
+    """Member k of a batched learner seen as a model (``predict``, ``save``, ``_n_updates``)
+    by :class:`~bgap.agents.monitor.TrainingMonitor`'s periodic evaluations."""
 
-    def __init__(self, learner: BatchedDQN, k: int) -> None:
-        self.learner, self.k = learner, k
+    def __init__(self, learner: BatchedDQN, k: int, save: Callable[[int, Path], None]) -> None:
+        self.learner, self.k, self._save = learner, k, save
+
+    def save(self, path: Path) -> None:
+        self._save(self.k, path)
 
     @property
     def _n_updates(self) -> int:
@@ -507,7 +512,7 @@ def _train_members(
                     monitors[k].state["steps"] = int(learner.num_timesteps[k])
                     go_on = monitors[k].on_step(
                         rewards[k], infos[k], terminated[k] | truncated[k],
-                        _MemberPolicy(learner, k),
+                        _MemberPolicy(learner, k, save_model),
                     )  # fmt: skip
                     if go_on:
                         keep.append(k)

@@ -41,12 +41,20 @@ meta-actions, :mod:`bgap.agents.rule_based`)."""
 LEARNERS = ("sb3", "batched")
 """Training algorithms' implementations: Stable-Baselines3's DQN (the reference, one training
 per process) and :mod:`bgap.agents.batched` (many trainings in lock step)."""
+CHECKPOINTS = ("best", "last")
+"""Which parameters of a training are evaluated: the validation-selected checkpoint or the
+final ones."""
 BACKENDS = ("highway", "vector")
 """Simulators: highway-env (the reference) and bgap's vectorised port."""
 MIX_SAMPLING = ("fixed", "uniform", "paper")
 """Training mix per episode: the configured mix, uniform in [0, 1], or a paper mix."""
 PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
 """Aggressive fractions of the paper's evaluation grid."""
+SPEED_FLOOR = 0.9
+"""A policy beats the idle ego when it crashes less at a mean speed of at least this fraction
+of idle's on the same episodes: safety bought by crawling is no win (ours; issue 20). The
+same rule ranks recipe candidates and selects a training's checkpoint
+(:func:`bgap.stats.constrained_score`)."""
 ENDINGS = ("timeout", "rear_end", "rear_ended", "lane_change", "other")
 """How an episode ended: it ran its full duration; the ego ran into a vehicle ahead; a
 vehicle ran into the ego from behind; contact during or within 2 s after an ego lane change;

@@ -36,7 +36,15 @@ def pipeline(tmp_path_factory) -> Path:
     for made_by_a_stage in ("behavior/calibrated", "reward/recipe", "agent/recipe"):
         (repo / f"bgap/conf/{made_by_a_stage}.yaml").unlink(missing_ok=True)
     params = yaml.safe_load((repo / "params.yaml").read_text())
-    params.update(profile="tiny", seeds="[0]", densities=["sparse"], grid="tiny", eval_episodes=4)
+    params.update(profile="tiny", grid="tiny", eval_episodes=4)
+    # the study in miniature: both arms and one ablation arm, sparse only, one seed each;
+    # periodic validations so that each training selects a checkpoint
+    validate = " profile.eval_every_episodes=2 profile.eval_during_training=4"
+    params["study"] = {
+        key: {**value, "seeds": "[0]", "settings": value["settings"] + validate}
+        for key, value in params["study"].items()
+        if key in ("main-sparse", "authors-sparse", "mix100-sparse")
+    }
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
@@ -67,8 +75,10 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     from bgap.presets import load_preset
 
     for name in (
-        "outputs/pipeline/runs/sparse/sparse-behavior_rich-s0/model.zip",
-        "outputs/pipeline/runs/sparse/sparse-default-s0/model.zip",
+        "outputs/pipeline/runs/main/sparse/sparse-behavior_rich-s0/best_model.zip",
+        "outputs/pipeline/runs/main/sparse/sparse-default-s0/best_model.zip",
+        "outputs/pipeline/runs/authors/sparse/sparse-default-s0/best_model.zip",
+        "outputs/pipeline/runs/mix100/sparse/sparse-behavior_rich-s0/best_model.zip",
         "results/parity/parity.csv",
         "dvc.lock",
     ):

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import pickle
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -348,11 +350,46 @@ def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_traini
     assert len(runs) == 4
     ev = pd.read_csv(runs[0].parent / "evaluations.csv")
     assert {"gradient_updates", "idle_collision_pct", "rule_avg_speed"} <= set(ev.columns)
+    _check_best_checkpoints(cfg, tmp_path / "runs")
     # a rerun reuses the four finished trainings and reproduces the numbers
     run(cfg)
     again = capsys.readouterr().out
     assert again.count("] reusing ") == 4 and "] training " not in again
     pd.testing.assert_frame_equal(pd.read_csv(out / "episodes.csv"), episodes)
+
+
+def _check_best_checkpoints(cfg, runs: Path) -> None:
+    """Each training kept the validation that ranks first by the rule stated by hand here
+    (fewest collisions among evaluations at >= 0.9 x idle's speed, ties the faster, then the
+    later; when none is that fast, the fastest), best_model.zip replays that validation's
+    figures, and evaluation plays best_model.zip unless checkpoint=last."""
+    from bgap.evaluate import policy_specs
+    from bgap.sweep import validation_episodes
+    from bgap.train import training_config
+
+    kept = sorted(p.parent for p in runs.glob("*/best.json"))
+    assert len(kept) == 4
+    for run_dir in kept:
+        ev = pd.read_csv(run_dir / "evaluations.csv")
+        fast = ev[ev.avg_speed >= 0.9 * ev.idle_avg_speed]
+        if len(fast):
+            pick = fast.sort_values(["collision_pct", "avg_speed", "episodes"],
+                                    ascending=[True, False, False])  # fmt: skip
+        else:
+            pick = ev.sort_values(["avg_speed", "episodes"], ascending=False)
+        chosen = json.loads((run_dir / "best.json").read_text())
+        assert chosen["episodes"] == pick.iloc[0].episodes, (run_dir, ev)
+        seed = int(re.search(r"-s(\d+)-", run_dir.name).group(1))
+        policy = "default" if "-default-" in run_dir.name else "behavior_rich"
+        tcfg = training_config(replace(cfg, seed=seed), policy)
+        n = cfg.profile.eval_during_training
+        again = validation_episodes(str(run_dir / "best_model.zip"), tcfg, n)
+        assert 100 * again.crashed.mean() == pytest.approx(pick.iloc[0].collision_pct)
+        assert again.avg_speed.mean() == pytest.approx(pick.iloc[0].avg_speed)
+    specs = policy_specs(replace(cfg, models=[str(d) for d in runs.iterdir()]))
+    assert all(s.endswith("best_model.zip") for s in specs.values() if s.endswith(".zip"))
+    last = policy_specs(replace(cfg, models=[str(d) for d in runs.iterdir()], checkpoint="last"))
+    assert all(s.endswith("/model.zip") for s in last.values() if s.endswith(".zip"))
 
 
 @pytest.mark.parametrize("killed_at", ["writing", "swapping"])

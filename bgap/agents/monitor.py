@@ -16,6 +16,7 @@ random streams' state, which an exact resume needs.
 
 from __future__ import annotations
 
+import json
 import os
 import pickle
 import shutil
@@ -30,6 +31,8 @@ import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.rollout import EpisodeStats, greedy, rollout
+from bgap.runs import BEST_MODEL
+from bgap.stats import constrained_score
 
 INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
 
@@ -67,8 +70,15 @@ def recover_checkpoint(run_dir: Path) -> None:
 
 class TrainingMonitor:
     """Counts episodes (the paper's budget unit), logs their statistics, evaluates the greedy
-    policy every ``eval_every`` episodes on seeded episodes of its own training traffic, and
-    writes checkpoints.
+    policy every ``eval_every`` episodes on seeded episodes of its own training traffic, keeps
+    the best of those checkpoints, and writes checkpoints for resuming.
+
+    The best checkpoint (``best_model.zip``, described in ``best.json``) is the evaluation
+    with the lowest :func:`bgap.stats.constrained_score` (fewest collisions among evaluations
+    at >= 0.9 x the idle ego's speed on the same episodes; ties: the faster, then the later).
+    The paper keeps no checkpoint selection; the authors' code keeps the last model. Ours:
+    one rule for every policy, on validation episodes only, so a training that ends in a bad
+    stretch (seen in dense traffic) is not judged by its last parameters.
 
     Args:
         run_dir: the run folder (``evaluations.csv``, ``checkpoints/``).
@@ -79,8 +89,11 @@ class TrainingMonitor:
         max_episodes: stop after this many episodes in total (None: no episode budget).
         eval_every, eval_episodes, eval_seed: evaluate every ``eval_every`` episodes (0: never)
             on ``eval_episodes`` episodes seeded ``eval_seed + k``.
-        state: counters restored from a checkpoint (``episodes``, ``steps``).
+        state: counters restored from a checkpoint (``episodes``, ``steps``, ``best``).
         log: ``log(key, value)`` records a scalar (TensorBoard).
+
+    The evaluated policy must have SB3's ``predict`` and ``save(path)`` (the best one is
+    saved through it).
     """
 
     def __init__(
@@ -151,7 +164,21 @@ class TrainingMonitor:
         self.log("eval/gradient_updates", record["gradient_updates"])
         path = self.run_dir / "evaluations.csv"
         pd.DataFrame([record]).to_csv(path, mode="a", header=not path.exists(), index=False)
+        self._keep_if_best(policy, record)
         return record
+
+    def _keep_if_best(self, policy: Any, record: dict[str, Any]) -> None:
+        """Save ``policy`` as the best checkpoint if this evaluation ranks first so far."""
+        score = constrained_score(record["collision_pct"], record["avg_speed"],
+                                  record["idle_avg_speed"])  # fmt: skip
+        rank = (score, -record["avg_speed"])
+        best = self.state.get("best")
+        if best is not None and tuple(best["rank"]) < rank:
+            return
+        self.state["best"] = {"rank": list(rank), "score": score, **record}
+        policy.save(self.run_dir / BEST_MODEL)
+        (self.run_dir / "best.json").write_text(json.dumps(self.state["best"], indent=1))
+        self.log("eval/best_score", score)
 
     def checkpoint(self, save: dict[str, Callable[[Path], Any]], extra: dict[str, Any]) -> None:
         """Write ``checkpoints/``: each ``save[name](path)`` (the learner's model, replay
