@@ -192,7 +192,9 @@ class ExperimentConfig(BaseConfig):
     root: str = "outputs"
     """Every run folder and result lives under this output root."""
     run_dir: Optional[str] = None
-    """Training run folder; default ``<root>/runs/<name derived from the config>``."""
+    """Training run folder; default ``<root>/runs/<name derived from the config>``. With
+    ``seeds=[...]`` or ``policies=[...]`` (the batched learner), the folder holding one run
+    folder per training, ``<density>-<policy>-s<seed>``."""
     resume: bool = False
     """Continue an interrupted training run from its last checkpoint."""
     models: list[str] = field(default_factory=list)

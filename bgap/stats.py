@@ -11,6 +11,7 @@ results' flags apply one definition.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 from scipy.stats import t as student_t
@@ -53,6 +54,85 @@ def mean_interval(x: np.ndarray) -> tuple[float, float]:
     return t_interval(x)
 
 
+def seed_bootstrap(
+    a: Sequence[np.ndarray],
+    b: Sequence[np.ndarray] | None = None,
+    *,
+    rng: np.random.Generator,
+    draws: int = 20_000,
+    paired: bool = False,
+) -> tuple[float, np.ndarray]:
+    """Two-level bootstrap of a mean over training seeds, the independent units.
+
+    ``a[i]`` holds training seed i's episode values (0/1 crashes, speeds, ...); the statistic
+    is the mean over seeds of each seed's mean, or with ``b`` the difference of two such
+    means (a - b). Each draw resamples the seeds with replacement, then each drawn seed's
+    episodes with replacement (independently per slot: a seed drawn twice gets two
+    resamples). A seed's 0/1 values (crashes) are drawn as its rate from the Jeffreys
+    posterior instead (:func:`_resampled_means`), so no interval has zero width.
+
+    ``paired``: ``a[i]`` and ``b[i]`` come from the same trained model (one policy in two
+    traffic conditions), so each draw picks the same seeds for both; their episodes are
+    resampled independently (different conditions share no episodes). Unrelated trainings
+    (two policy families) are never paired. Where two conditions play identical scenes
+    (the same episode seeds and traffic, e.g. two perception radii), pass the per-episode
+    differences as ``a`` alone instead.
+
+    Returns the observed statistic and its ``draws`` bootstrap replicates."""
+    a = [np.asarray(x, dtype=float) for x in a]
+    pick_a = rng.integers(len(a), size=(draws, len(a)))
+    observed = float(np.mean([x.mean() for x in a]))
+    dist = _resampled_means(a, pick_a, rng)
+    if b is not None:
+        b = [np.asarray(x, dtype=float) for x in b]
+        if paired and len(b) != len(a):
+            raise ValueError(f"paired arms need the same seeds: {len(a)} vs {len(b)}")
+        pick_b = pick_a if paired else rng.integers(len(b), size=(draws, len(b)))
+        observed -= float(np.mean([x.mean() for x in b]))
+        dist = dist - _resampled_means(b, pick_b, rng)
+    return observed, dist
+
+
+def _resampled_means(groups: list[np.ndarray], pick: np.ndarray, rng) -> np.ndarray:
+    """Per draw, the mean over the picked seeds of each one's resampled episode mean."""
+    means = np.empty(pick.shape)
+    for s, x in enumerate(groups):
+        slots = pick == s
+        k, n = int(slots.sum()), len(x)
+        if k == 0:
+            continue
+        if np.isin(x, (0.0, 1.0)).all():
+            # the seed's rate from its Jeffreys posterior Beta(e + 1/2, n - e + 1/2): the
+            # spread of a binomial resample, but a seed with 0 (or n) events still varies (a
+            # resample of 0/100 is always 0, which would make intervals of zero width)
+            e = x.sum()
+            means[slots] = rng.beta(e + 0.5, n - e + 0.5, size=k)
+        else:  # chunks keep the (k, n) index array small
+            out = np.empty(k)
+            step = max(1, 2_000_000 // n)
+            for i in range(0, k, step):
+                m = min(step, k - i)
+                out[i : i + m] = x[rng.integers(n, size=(m, n))].mean(axis=1)
+            means[slots] = out
+    return means.mean(axis=1)
+
+
+def bootstrap_test(
+    dist: np.ndarray, level: float = 0.95, null: float = 0.0, observed: float | None = None
+) -> tuple[float, float, float]:
+    """Percentile interval at ``level`` of bootstrap replicates and the two-sided p-value of
+    ``null`` (twice the smaller share of replicates on either side of it): the interval at
+    level 1 - alpha excludes ``null`` exactly when p < alpha (up to ties at ``null``).
+    With ``observed``, the interval is widened to contain it (a rate of 0 events, whose
+    posterior draws all lie above 0)."""
+    tail = 100 * (1 - level) / 2
+    lo, hi = np.percentile(dist, [tail, 100 - tail])
+    if observed is not None:
+        lo, hi = min(lo, observed), max(hi, observed)
+    p = min(1.0, 2 * min(float(np.mean(dist <= null)), float(np.mean(dist >= null))))
+    return float(lo), float(hi), p
+
+
 def seed_bootstrap_diff(
     a_events: np.ndarray,
     a_episodes: np.ndarray,
@@ -61,29 +141,37 @@ def seed_bootstrap_diff(
     rng: np.random.Generator,
     draws: int = 2000,
 ) -> tuple[float, float, float, float]:
-    """Difference of two arms' mean event rates (a - b) when training seeds are the
-    independent units: ``a_events[i]`` events in ``a_episodes[i]`` episodes for training seed
-    i of arm a (likewise b; the arms' seeds are unrelated, so nothing is paired).
+    """:func:`seed_bootstrap` of two unrelated arms' event rates from counts:
+    ``a_events[i]`` events in ``a_episodes[i]`` episodes for training seed i of arm a.
+    Returns the observed difference a - b, the 95% percentile interval and the two-sided
+    p-value. Coverage is checked by simulation in ``tests/test_stats.py`` (10 seeds x 100
+    episodes per arm)."""
 
-    Two-level bootstrap: each draw resamples each arm's seeds with replacement, then each
-    drawn seed's episodes (binomially, at that seed's observed rate), and averages the
-    seeds' rates. Returns the observed difference, the 95% percentile interval and a
-    two-sided bootstrap p-value (twice the smaller tail beyond 0). Coverage is checked by
-    simulation in ``tests/test_stats.py`` (10 seeds x 100 episodes per arm)."""
+    def episodes(events, n) -> list[np.ndarray]:
+        return [
+            np.r_[np.ones(int(k)), np.zeros(int(m) - int(k))]
+            for k, m in zip(events, n, strict=True)
+        ]
 
-    def arm(events: np.ndarray, episodes: np.ndarray) -> np.ndarray:
-        events, episodes = np.asarray(events), np.asarray(episodes)
-        pick = rng.integers(len(events), size=(draws, len(events)))
-        n = episodes[pick]
-        return (rng.binomial(n, events[pick] / n) / n).mean(axis=1)
-
-    observed = float(
-        np.mean(np.asarray(a_events) / a_episodes) - np.mean(np.asarray(b_events) / b_episodes)
+    observed, dist = seed_bootstrap(
+        episodes(a_events, a_episodes), episodes(b_events, b_episodes), rng=rng, draws=draws
     )
-    d = arm(a_events, a_episodes) - arm(b_events, b_episodes)
-    lo, hi = np.percentile(d, [2.5, 97.5])
-    p = min(1.0, 2 * min(float(np.mean(d <= 0)), float(np.mean(d >= 0))))
-    return observed, float(lo), float(hi), p
+    return (observed, *bootstrap_test(dist, observed=observed))
+
+
+def seed_rate_interval(
+    groups: Sequence[np.ndarray], rng: np.random.Generator, draws: int = 4000
+) -> tuple[float, float]:
+    """95% interval of a rate averaged over training seeds (``groups[i]``: seed i's 0/1
+    episodes): the two-level bootstrap's percentile interval, widened where needed to the
+    Wilson interval of all the episodes pooled, so that it is never of zero width (0 crashes
+    in 300 episodes reads [0, 0.013], not [0, 0]) and never narrower than the episodes alone
+    allow."""
+    observed, dist = seed_bootstrap(groups, rng=rng, draws=draws)
+    lo, hi, _ = bootstrap_test(dist, observed=observed)
+    pooled = np.concatenate([np.asarray(g, dtype=float) for g in groups])
+    w_lo, w_hi = wilson_interval(int(pooled.sum()), len(pooled))
+    return min(lo, w_lo), max(hi, w_hi)
 
 
 def holm(pvalues: np.ndarray) -> np.ndarray:

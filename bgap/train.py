@@ -338,9 +338,11 @@ def train_batched(
                     f"({c.policy}) differs from seed {first.seed} ({first.policy})"
                 )
     dirs = [run_dir_for(c) for c in cfgs]
-    if first.run_dir and len(cfgs) > 1:
+    if first.run_dir and (len(cfgs) > 1 or first.seeds or first.policies):
         # one folder per member under run_dir, named as the pipeline names its runs (the
-        # settings are in each folder's config.yaml, which refuses another training)
+        # settings are in each folder's config.yaml, which refuses another training); also
+        # for a single member asked for by seeds=/policies=, so the layout does not depend
+        # on how many there are
         dirs = [Path(first.run_dir) / f"{c.env.name}-{c.policy}-s{c.seed}" for c in cfgs]
     if len(set(dirs)) < len(dirs):
         raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")

@@ -5,7 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bgap.stats import holm, seed_bootstrap_diff, wilson_interval
+from bgap.stats import (
+    bootstrap_test,
+    holm,
+    seed_bootstrap,
+    seed_bootstrap_diff,
+    seed_rate_interval,
+    wilson_interval,
+)
 
 
 def test_wilson_interval_equals_textbook_values():
@@ -24,7 +31,7 @@ def test_holm_by_hand():
 
 
 def test_seed_bootstrap_covers_a_known_difference_at_its_nominal_rate():
-    """600 synthetic studies shaped like ours: 10 training seeds x 100 episodes per policy,
+    """1,000 synthetic studies shaped like ours: 10 training seeds x 100 episodes per policy,
     collision rates 30% and 20%, between-seed standard deviation 8 points. The 95% interval
     covers the true difference in 95 +- 3% of them."""
     rng = np.random.default_rng(0)
@@ -36,15 +43,15 @@ def test_seed_bootstrap_covers_a_known_difference_at_its_nominal_rate():
     )
     n = np.full(seeds, episodes)
     covered, rejected = 0, 0
-    for _ in range(600):
+    for _ in range(1000):
         a = rng.binomial(episodes, np.clip(rng.normal(0.30, sd, seeds), 0, 1))
         b = rng.binomial(episodes, np.clip(rng.normal(0.20, sd, seeds), 0, 1))
         diff, lo, hi, p = seed_bootstrap_diff(a, n, b, n, rng, draws=1000)
         assert lo <= diff <= hi
         covered += lo <= truth <= hi
         rejected += p < 0.05
-    assert 0.92 <= covered / 600 <= 0.98, covered / 600
-    assert rejected / 600 > 0.5  # a 10-point difference is usually detected at 10 seeds
+    assert 0.92 <= covered / 1000 <= 0.98, covered / 1000
+    assert rejected / 1000 > 0.5  # a 10-point difference is usually detected at 10 seeds
 
 
 def test_seed_bootstrap_sees_no_difference_between_identical_arms():
@@ -52,3 +59,47 @@ def test_seed_bootstrap_sees_no_difference_between_identical_arms():
     n = np.full(5, 100)
     diff, lo, hi, p = seed_bootstrap_diff([20, 25, 30, 22, 18], n, [20, 25, 30, 22, 18], n, rng)
     assert diff == 0.0 and lo < 0 < hi and p > 0.5
+
+
+def test_two_level_bootstrap_spread_equals_the_closed_form_for_continuous_values():
+    """One arm, S seeds with means drawn with sd 2 and n episodes each with sd 5: the mean
+    over seeds has variance (sd_b^2 + sd_w^2 / n) / S; the bootstrap's (a plug-in estimate)
+    is that times (S - 1) / S for each level. Checked on a large sample to 10%."""
+    rng = np.random.default_rng(3)
+    seeds, n = 40, 200
+    groups = [rng.normal(rng.normal(20, 2), 5, n) for _ in range(seeds)]
+    observed, dist = seed_bootstrap(groups, rng=rng, draws=4000)
+    assert observed == pytest.approx(np.mean([g.mean() for g in groups]))
+    seed_means = np.array([g.mean() for g in groups])
+    within = np.mean([g.var(ddof=0) for g in groups]) / n
+    # plug-in: between-seed variance of the observed means (ddof=0) already holds within / n
+    expected = seed_means.var(ddof=0) / seeds + within / seeds
+    assert dist.std() == pytest.approx(np.sqrt(expected), rel=0.1)
+
+
+def test_pairing_by_model_removes_the_between_seed_spread():
+    """The same 8 models in two conditions, each crashing 5 points more in the second, with
+    rates spread widely between models: the paired interval is far narrower than the
+    unpaired one and both cover the 5-point difference."""
+    rng = np.random.default_rng(4)
+    rates = np.linspace(0.1, 0.6, 8)
+    a = [rng.binomial(1, r + 0.05, 2000) for r in rates]
+    b = [rng.binomial(1, r, 2000) for r in rates]
+    widths = {}
+    for paired in (True, False):
+        observed, dist = seed_bootstrap(a, b, rng=rng, draws=4000, paired=paired)
+        lo, hi, _ = bootstrap_test(dist)
+        assert lo < 0.05 < hi and lo <= observed <= hi
+        widths[paired] = hi - lo
+    assert widths[True] < 0.3 * widths[False]
+    with pytest.raises(ValueError, match="same seeds"):
+        seed_bootstrap(a, b[:3], rng=rng, paired=True)
+
+
+def test_a_rate_interval_over_seeds_is_never_of_zero_width():
+    rng = np.random.default_rng(5)
+    lo, hi = seed_rate_interval([np.zeros(100)] * 3, rng)
+    assert lo == 0.0 and hi >= wilson_interval(0, 300)[1] > 0  # never narrower than Wilson
+    lo, hi = seed_rate_interval([np.zeros(100), np.ones(100) * (np.arange(100) < 40)], rng)
+    assert lo < 0.1 < 0.3 < hi  # two seeds at 0% and 40%: the seeds' spread dominates
+    assert bootstrap_test(np.array([-1.0, 1.0, 2.0, 3.0]), level=0.5)[2] == 0.5
