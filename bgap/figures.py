@@ -805,11 +805,7 @@ def readme(df, stats, table, own, results_dir, stock, runs, paths) -> str:
         "paper's mixes (main arm), collision percentage points, largest radius; unpaired "
         "two-level bootstrap, exploratory (not in the Holm family). Figure: "
         "`figures/ablation.png`.\n",
-        (
-            ablated.to_markdown(index=False, floatfmt=".2f")
-            if len(ablated)
-            else "(no ablation arms)"
-        )
+        (ablated.to_markdown(index=False, floatfmt=".2f") if len(ablated) else "(no ablation arms)")
         + "\n",
         "## Collisions and speed beside the paper's bars (main arm)\n",
         paper_comparison(stats),
