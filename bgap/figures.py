@@ -430,6 +430,10 @@ def own_traffic(df: pd.DataFrame) -> pd.DataFrame:
             "idle_collision_pct": float(idle.collision_pct.mean()),
             "idle_avg_speed": float(idle.avg_speed.mean()),
         }  # fmt: skip
+        if "ending" in mine:
+            for who, rows_ in (("", mine), ("idle_", idle)):
+                share = rows_.ending.value_counts(normalize=True)
+                row |= {f"{who}{k}_pct": 100.0 * float(share.get(k, 0.0)) for k in CRASH_KINDS}
         row["beats_idle"] = beats_idle(
             row["collision_pct"], row["avg_speed"], row["idle_collision_pct"], row["idle_avg_speed"]
         )
@@ -517,16 +521,23 @@ def _p(p: float) -> str:
 
 def own_markdown(own: pd.DataFrame) -> str:
     lines = [
-        "| arm | policy | n | own traffic | collision % [95% CI] | speed m/s | idle % | "
+        "| arm | policy | n | own traffic | collision % [95% CI] | crashes: rear-end / "
+        "rear-ended / lane change | speed m/s | idle % (rear-end / rear-ended / lane change) | "
         "idle m/s | seeds | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in own.sort_values(["arm", "family"], key=_arm_order).itertuples():
         verdict = "beats idle" if r.beats_idle else "**FLAGGED: does not beat idle**"
+        split, idle_split = (
+            " / ".join(f"{getattr(r, f'{who}{k}_pct', float('nan')):.1f}"
+                       for k in ("rear_end", "rear_ended", "lane_change"))
+            for who in ("", "idle_")
+        )  # fmt: skip
         lines.append(
             f"| {r.arm} | {r.family} | {r.n} | {r.own_traffic} | {r.collision_pct:.1f} "
-            f"[{r.collision_lo:.1f}, {r.collision_hi:.1f}] | {r.avg_speed:.2f} | "
-            f"{r.idle_collision_pct:.1f} | {r.idle_avg_speed:.2f} | {r.n_seeds} | {verdict} |"
+            f"[{r.collision_lo:.1f}, {r.collision_hi:.1f}] | {split} | {r.avg_speed:.2f} | "
+            f"{r.idle_collision_pct:.1f} ({idle_split}) | {r.idle_avg_speed:.2f} | "
+            f"{r.n_seeds} | {verdict} |"
         )
     return "\n".join(lines) + "\n"
 
