@@ -18,6 +18,7 @@ from bgap.config import SimulateConfig, app, load
 from bgap.rollout import Rollout, rollout
 from bgap.runs import save_run_metadata
 from bgap.scenario import env_config
+from bgap.vocab import LANE_WIDTH
 
 
 def record(
@@ -27,9 +28,12 @@ def record(
     ``k`` in the table), recording every frame (and with ``render``, the first episode's
     pictures)."""
     episodes = cfg.episodes if episodes is None else episodes
+    config = env_config(cfg)
+    if render:
+        config |= whole_scene_view(config, cfg.seed)
     with tqdm(total=episodes, desc="episodes", disable=not progress, unit="ep") as bar:
         return rollout(
-            env_config(cfg),
+            config,
             cfg.policy,
             range(cfg.seed, cfg.seed + episodes),
             cfg.backend,
@@ -37,6 +41,30 @@ def record(
             render=render,
             progress=bar.update,
         )
+
+
+def whole_scene_view(config: dict, seed: int, width: int = 1800) -> dict:
+    """highway-env's render settings that show the whole scene of the episode seeded
+    ``seed`` at its start: every vehicle, the ego included (highway-env's default view is
+    600 px at 5.5 px/m around the ego, about 110 m of a dense scene that spans 800 m)."""
+    from bgap.envs import make_highway
+
+    env = make_highway(config)
+    env.reset(seed=seed)
+    xs = [v.position[0] for v in env.unwrapped.road.vehicles]
+    ego = env.unwrapped.vehicle.position[0]
+    env.close()
+    margin = 30.0  # m beyond the first and last vehicle
+    span = max(xs) - min(xs) + 2 * margin
+    scaling = min(width / span, 5.5)  # no closer than highway-env's own view
+    road = config["lanes_count"] * LANE_WIDTH
+    return {
+        "screen_width": width,
+        # the view is centred on the ego's lane: room for the whole road on either side
+        "screen_height": int(2 * scaling * road + 20),
+        "scaling": scaling,
+        "centering_position": [(ego - min(xs) + margin) / span, 0.5],
+    }
 
 
 def simulate(

@@ -63,3 +63,22 @@ def test_simulate_command_rejects_bad_mix(tmp_path):
     )
     assert done.returncode != 0
     assert "mix=1.5 is invalid" in done.stderr
+
+
+def test_the_first_picture_shows_every_vehicle_of_a_dense_scene():
+    """The GIF's first frame, drawn by highway-env: one blob of the class colour per vehicle
+    (highway-env's own view shows about 4 of 40)."""
+    from scipy import ndimage
+
+    from bgap.simulate import record
+    from bgap.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO
+
+    cfg = make_cfg("env=dense", "env.duration=1", "mix=0.5", "backend=highway")
+    result = record(cfg, episodes=1, progress=False, render=True)
+    image = np.asarray(result.images[0], dtype=int)
+    first = result.trajectories[result.trajectories.frame == 0]
+    for label, count in ((AGGRESSIVE, 20), (CONSERVATIVE, 20), (EGO, 1)):
+        assert (first.label == label).sum() == count
+        mask = (np.abs(image - np.array(COLORS[label])) < 40).all(axis=-1)
+        _, blobs = ndimage.label(mask)
+        assert blobs == count, (label, blobs)
