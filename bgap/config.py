@@ -225,9 +225,9 @@ class ExperimentConfig(BaseConfig):
     """``bgap.evaluate`` / ``bgap.run`` results folder; default under ``<root>/results``."""
     checkpoint: str = "best"
     """Which parameters of a training are evaluated: ``best``, the checkpoint its periodic
-    validations chose (``best_model.zip``: fewest validation collisions at >= 0.9 x idle's
-    speed, :func:`bgap.stats.constrained_score`; ours, the paper keeps none), or ``last``, the
-    final parameters (``model.zip``). A run without validations has only the last."""
+    validations chose (``best_model.zip``: the highest mean validation return, as SB3's
+    ``EvalCallback``; ours, the paper keeps none), or ``last``, the final parameters
+    (``model.zip``). A run without validations has only the last."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -829,9 +829,9 @@ def readme(df, stats, table, own, results_dir, stock, runs, paths) -> str:
         departures_markdown(Path(runs) if runs else None),
         "## Checkpoints the trainings kept\n",
         "Each training validates every 50 episodes on 20 episodes of its own traffic and "
-        "keeps the validation with the fewest collisions at >= 0.9 x idle's speed "
-        "(`best_model.zip`, ours: the paper keeps none); the test episodes play that "
-        "checkpoint.\n",
+        "keeps the validation with the highest mean return under its own reward "
+        "(`best_model.zip`, SB3's EvalCallback rule; ours: the paper keeps none); the test "
+        "episodes play that checkpoint.\n",
         selection_markdown(Path(runs) if runs else None),
     ]
     return "\n".join(parts)

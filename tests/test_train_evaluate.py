@@ -359,10 +359,9 @@ def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_traini
 
 
 def _check_best_checkpoints(cfg, runs: Path) -> None:
-    """Each training kept the validation that ranks first by the rule stated by hand here
-    (fewest collisions among evaluations at >= 0.9 x idle's speed, ties the faster, then the
-    later; when none is that fast, the fastest), best_model.zip replays that validation's
-    figures, and evaluation plays best_model.zip unless checkpoint=last."""
+    """Each training kept its validation with the highest mean return (ties: the later),
+    best_model.zip replays that validation's figures, and evaluation plays best_model.zip
+    unless checkpoint=last."""
     from bgap.evaluate import policy_specs
     from bgap.sweep import validation_episodes
     from bgap.train import training_config
@@ -371,12 +370,7 @@ def _check_best_checkpoints(cfg, runs: Path) -> None:
     assert len(kept) == 4
     for run_dir in kept:
         ev = pd.read_csv(run_dir / "evaluations.csv")
-        fast = ev[ev.avg_speed >= 0.9 * ev.idle_avg_speed]
-        if len(fast):
-            pick = fast.sort_values(["collision_pct", "avg_speed", "episodes"],
-                                    ascending=[True, False, False])  # fmt: skip
-        else:
-            pick = ev.sort_values(["avg_speed", "episodes"], ascending=False)
+        pick = ev.sort_values(["return", "episodes"], ascending=False)
         chosen = json.loads((run_dir / "best.json").read_text())
         assert chosen["episodes"] == pick.iloc[0].episodes, (run_dir, ev)
         seed = int(re.search(r"-s(\d+)-", run_dir.name).group(1))
@@ -441,3 +435,22 @@ def test_a_kill_while_a_checkpoint_is_written_leaves_the_previous_one_whole(tmp_
     assert ((folder / "model.zip").read_text(), state["env"]) == want
     assert (folder / "replay.pkl").read_text() == f"r{want[1]}"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoints"]
+
+
+def test_the_kept_checkpoint_has_the_highest_validation_return(tmp_path):
+    """A fast early validation that crashes often (stock traffic: the default policy's first
+    validations) has a low return under the training's reward and is replaced; a tie keeps
+    the later one."""
+    from bgap.agents.monitor import TrainingMonitor
+
+    kept = []
+
+    class Policy:
+        def save(self, path):
+            kept.append(current)
+
+    monitor = TrainingMonitor(tmp_path, 1, {"policy_frequency": 1}, "vector", None, 0, 1, 0)
+    for current, value in enumerate([20.5, 31.0, 30.2, 31.0, 12.0]):
+        monitor._keep_if_best(Policy(), {"episodes": 50 * (current + 1), "return": value})
+    assert kept == [0, 1, 3]
+    assert json.loads((tmp_path / "best.json").read_text())["episodes"] == 200

@@ -32,7 +32,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.rollout import EpisodeStats, greedy, rollout
 from bgap.runs import BEST_MODEL
-from bgap.stats import constrained_score
 
 INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
 
@@ -74,11 +73,13 @@ class TrainingMonitor:
     the best of those checkpoints, and writes checkpoints for resuming.
 
     The best checkpoint (``best_model.zip``, described in ``best.json``) is the evaluation
-    with the lowest :func:`bgap.stats.constrained_score` (fewest collisions among evaluations
-    at >= 0.9 x the idle ego's speed on the same episodes; ties: the faster, then the later).
-    The paper keeps no checkpoint selection; the authors' code keeps the last model. Ours:
-    one rule for every policy, on validation episodes only, so a training that ends in a bad
-    stretch (seen in dense traffic) is not judged by its last parameters.
+    with the highest mean validation return (ties: the later), the rule of SB3's
+    ``EvalCallback``: the training's own reward weighs crashes against speed. The paper keeps
+    no checkpoint selection; the authors' code keeps the last model. Ours: one rule for every
+    policy, on validation episodes only, so a training that ends in a bad stretch (seen in
+    dense traffic) is not judged by its last parameters. (A rule on collisions at a floor of
+    idle's speed fails in stock traffic: idle never brakes there, so the only checkpoints as
+    fast as the floor are early ones that crash in most episodes.)
 
     Args:
         run_dir: the run folder (``evaluations.csv``, ``checkpoints/``).
@@ -169,16 +170,13 @@ class TrainingMonitor:
 
     def _keep_if_best(self, policy: Any, record: dict[str, Any]) -> None:
         """Save ``policy`` as the best checkpoint if this evaluation ranks first so far."""
-        score = constrained_score(record["collision_pct"], record["avg_speed"],
-                                  record["idle_avg_speed"])  # fmt: skip
-        rank = (score, -record["avg_speed"])
         best = self.state.get("best")
-        if best is not None and tuple(best["rank"]) < rank:
-            return
-        self.state["best"] = {"rank": list(rank), "score": score, **record}
+        if best is not None and best["return"] > record["return"]:
+            return  # ties: the later evaluation, which has trained longer
+        self.state["best"] = dict(record)
         policy.save(self.run_dir / BEST_MODEL)
         (self.run_dir / "best.json").write_text(json.dumps(self.state["best"], indent=1))
-        self.log("eval/best_score", score)
+        self.log("eval/best_episodes", record["episodes"])
 
     def checkpoint(self, save: dict[str, Callable[[Path], Any]], extra: dict[str, Any]) -> None:
         """Write ``checkpoints/``: each ``save[name](path)`` (the learner's model, replay
