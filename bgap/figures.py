@@ -584,7 +584,9 @@ def departures_markdown(runs: Path | None) -> str:
         a, b = configs["authors"][group], configs["main"][group]
         for key in sorted(set(a) | set(b)):
             if key != "name" and a.get(key) != b.get(key):
-                lines.append(f"| {group}.{key} | {a.get(key)} | {b.get(key)} |")
+                shown = [f"{v:.4g}" if isinstance(v, float) else str(v)
+                         for v in (a.get(key), b.get(key))]  # fmt: skip
+                lines.append(f"| {group}.{key} | {shown[0]} | {shown[1]} |")
     lines.append(
         "\nThe recipe's settings come from `bgap.recipe` (results/recipe/, validation episodes "
         "only); the authors' from their code (FACTS.md). `agent.gradient_steps` -1 is one "
