@@ -6,7 +6,14 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bgap.figures import cell_stats, claims, duplicates, own_traffic, parse_policies
+from bgap.figures import (
+    ablation_table,
+    cell_stats,
+    claims,
+    duplicates,
+    own_traffic,
+    parse_policies,
+)
 from bgap.vocab import PAPER_MIXES
 
 
@@ -97,3 +104,23 @@ def test_radius_claim_and_duplicates_and_own_traffic():
     # behaviour-rich at 5% vs idle 20% at the same speed: beats idle
     assert own.loc["behavior_rich", "beats_idle"]
     assert own.loc["behavior_rich", "n_episodes"] == 6 * 6 * 200  # six distinct mixes
+
+
+def test_the_ablation_compares_one_training_mix_with_the_mixture():
+    """An arm trained at 100% aggressive that crashes at 30% wherever traffic is mixed, 0% at
+    100%, against the mixture's 5% everywhere: worse over all test mixes, not at its own."""
+
+    def rate(family, mix, radius, seed):
+        return 0.05
+
+    main = _study(rate, radii=(180.0,))
+    rng = np.random.default_rng(9)
+    one = main[(main.family == "behavior_rich")].copy()
+    one["arm"] = "mix100"
+    one["crashed"] = rng.random(len(one)) < np.where(one.mix == 1.0, 0.0, 0.30)
+    one["collision_pct"] = 100.0 * one.crashed
+    table = ablation_table(pd.concat([main, one], ignore_index=True)).set_index("test traffic")
+    assert table.loc["all test mixes", "difference"] == pytest.approx(100 * 0.30 * 5 / 6 - 5, abs=2)
+    assert table.loc["all test mixes", "lo"] > 0
+    assert table.loc["100%", "difference"] == pytest.approx(-5, abs=2)
+    assert table.loc["100%", "hi"] < 0

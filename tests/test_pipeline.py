@@ -37,13 +37,14 @@ def pipeline(tmp_path_factory) -> Path:
         (repo / f"bgap/conf/{made_by_a_stage}.yaml").unlink(missing_ok=True)
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params.update(profile="tiny", grid="tiny", eval_episodes=4)
-    # the study in miniature: both arms and one ablation arm, sparse only, one seed each;
+    # the study in miniature: both arms (the ablation arms train the same way, with one
+    # family: tests/test_figures.py), sparse only, one seed each;
     # periodic validations so that each training selects a checkpoint
     validate = " profile.eval_every_episodes=2 profile.eval_during_training=4"
     params["study"] = {
         key: {**value, "seeds": "[0]", "settings": value["settings"] + validate}
         for key, value in params["study"].items()
-        if key in ("main-sparse", "authors-sparse", "mix100-sparse")
+        if key in ("main-sparse", "authors-sparse")
     }
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
@@ -78,7 +79,6 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
         "outputs/pipeline/runs/main/sparse/sparse-behavior_rich-s0/best_model.zip",
         "outputs/pipeline/runs/main/sparse/sparse-default-s0/best_model.zip",
         "outputs/pipeline/runs/authors/sparse/sparse-default-s0/best_model.zip",
-        "outputs/pipeline/runs/mix100/sparse/sparse-behavior_rich-s0/best_model.zip",
         "results/parity/parity.csv",
         "dvc.lock",
     ):
@@ -94,7 +94,7 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     parts = episodes.policy.str.extract(r"^(?:([a-z0-9]+)/[a-z]+/)?[a-z]+-(behavior_rich|default)")
     episodes["arm"] = parts[0].fillna("")
     episodes["family"] = parts[1].fillna(episodes.policy)
-    assert set(episodes.arm) == {"", "main", "authors", "mix100"}
+    assert set(episodes.arm) == {"", "main", "authors"}
     cells = pd.read_csv(pipeline / "results/cells.csv")
     cells["arm"] = cells.arm.fillna("")
     assert set(cells.traffic) == {"paper", "stock"}
@@ -120,10 +120,10 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     own = pd.read_csv(pipeline / "results/own_traffic.csv")
     assert set(zip(own.arm, own.family, strict=True)) == {
         ("main", "behavior_rich"), ("main", "default"), ("authors", "behavior_rich"),
-        ("authors", "default"), ("mix100", "behavior_rich"),
+        ("authors", "default"),
     }  # fmt: skip
     assert "Checkpoints the trainings kept" in (pipeline / "results/README.md").read_text()
-    for name in ("fig4_authors.png", "ablation.png", "paper_vs_ours.png"):
+    for name in ("fig4_authors.png", "paper_vs_ours.png"):
         assert (pipeline / "results/figures" / name).stat().st_size > 0
     # Fig. 4 draws both families (green and grey); Fig. 6 one colour per radius
     fig4 = pipeline / "results/figures/fig4.png"
