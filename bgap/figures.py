@@ -143,6 +143,19 @@ def _groups(df: pd.DataFrame, metric: str) -> dict[int, np.ndarray]:
     return {s: g[metric].to_numpy(dtype=float) for s, g in ordered.groupby("train_seed")}
 
 
+def _crashes(df: pd.DataFrame) -> list[np.ndarray]:
+    """Each training seed's episodes as 0/1 crashes (:func:`_groups` order)."""
+    return [x / 100 for x in _groups(df, "collision_pct").values()]
+
+
+def _rate(df: pd.DataFrame, rng: np.random.Generator) -> tuple[float, float, float, int]:
+    """Collision % averaged over training seeds, its 95% interval
+    (:func:`bgap.stats.seed_rate_interval`) and the number of seeds."""
+    pct = list(_groups(df, "collision_pct").values())
+    lo, hi = seed_rate_interval([x / 100 for x in pct], rng)
+    return float(np.mean([x.mean() for x in pct])), 100 * lo, 100 * hi, len(pct)
+
+
 # ---------------------------------------------------------------------- cells
 def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per arm, family, traffic and cell: mean over training seeds of each metric and its 95%
@@ -159,11 +172,9 @@ def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     for key, episodes in df.groupby(keys, sort=True):
         row = dict(zip(keys, key, strict=True))
         g = seed_means[key]
-        seeds = _groups(episodes, "collision_pct")
-        row |= {"seeds": len(seeds), "n_seeds": len(seeds), "n_episodes": len(episodes)}
-        row["collision_pct"] = float(np.mean([x.mean() for x in seeds.values()]))
-        lo, hi = seed_rate_interval([x / 100 for x in seeds.values()], rng)
-        row["collision_pct_lo"], row["collision_pct_hi"] = 100 * lo, 100 * hi
+        rate, lo, hi, n_seeds = _rate(episodes, rng)
+        row |= {"seeds": n_seeds, "n_seeds": n_seeds, "n_episodes": len(episodes)}
+        row |= {"collision_pct": rate, "collision_pct_lo": lo, "collision_pct_hi": hi}
         for m in ("avg_speed", "lane_changes"):
             row[m] = float(g[m].mean())
             values = g[m].to_numpy() if len(g) > 1 else episodes[m].to_numpy(dtype=float)
@@ -361,8 +372,7 @@ def ablation_table(df: pd.DataFrame, seed: int = 2) -> pd.DataFrame:
                 b = d[(d.arm == "main") & d.mix.isin(mixes)]
                 if a.empty or b.empty:
                     continue
-                ga = [x / 100 for x in _groups(a, "collision_pct").values()]
-                gb = [x / 100 for x in _groups(b, "collision_pct").values()]
+                ga, gb = _crashes(a), _crashes(b)
                 observed, dist = seed_bootstrap(ga, gb, rng=rng)
                 lo, hi, p = bootstrap_test(100 * dist, observed=100 * observed)
                 rows.append({"arm": arm, "n": n_of(density), "test traffic": where,
@@ -419,13 +429,11 @@ def own_traffic(df: pd.DataFrame) -> pd.DataFrame:
         mine, idle = sel[sel.policy.isin(g.policy.unique())], sel[sel.family == "idle"]
         if mine.empty or idle.empty:
             continue
-        seeds = _groups(mine, "collision_pct")
-        lo, hi = seed_rate_interval([x / 100 for x in seeds.values()], rng)
+        rate, lo, hi, n_seeds = _rate(mine, rng)
         row = {
             "arm": arm, "family": family, "n": n_of(density), "own_traffic": label,
-            "n_seeds": len(seeds), "n_episodes": len(mine),
-            "collision_pct": float(np.mean([x.mean() for x in seeds.values()])),
-            "collision_lo": 100 * lo, "collision_hi": 100 * hi,
+            "n_seeds": n_seeds, "n_episodes": len(mine),
+            "collision_pct": rate, "collision_lo": lo, "collision_hi": hi,
             "avg_speed": float(mine.groupby("train_seed").avg_speed.mean().mean()),
             "idle_collision_pct": float(idle.collision_pct.mean()),
             "idle_avg_speed": float(idle.avg_speed.mean()),
