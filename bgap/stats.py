@@ -2,10 +2,10 @@
 
 Rates get Wilson score intervals (never of zero width, also at 0 or n events); means get
 Student t intervals; differences between policies whose independent units are training
-seeds get a two-level bootstrap (:func:`seed_bootstrap_diff`); a table of claims gets Holm's
+seeds get a two-level bootstrap (:func:`seed_bootstrap`); a table of claims gets Holm's
 correction (:func:`holm`). The rule that judges a policy against the idle ego is here too
-(:func:`constrained_score`, :func:`beats_idle`), so sweeps, checkpoint selection and the
-results' flags apply one definition.
+(:func:`constrained_score`, :func:`beats_idle`), so the sweeps, bgap.run's flags and the
+results page apply one definition.
 """
 
 from __future__ import annotations
