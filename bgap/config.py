@@ -113,8 +113,8 @@ class CMetricAppConfig:
     fps: float = 15.0
     """Frame rate used when the table has frames but no times."""
     out: Optional[str] = None
-    """Scores file (.csv or .parquet) or an existing folder (``<folder>/<stem>_cmetric.csv``);
-    default: next to the input, ``<stem>_cmetric.csv``."""
+    """A folder (``<folder>/<stem>_cmetric.csv`` and side files; a new folder ends with /)
+    or a scores file (.csv or .parquet); default ``outputs/cmetric/<stem>_<preset>/``."""
     plot_vehicles: list[int] = field(default_factory=list)
     """Vehicle ids to plot (first episode); default: the two highest and two lowest scores."""
 

@@ -3,10 +3,14 @@
     python -m bgap.cmetric input=data/dense/trajectories.parquet cmetric.mu=60 plot_vehicles=[3,7]
     python -m bgap.cmetric data/dense/trajectories.parquet     # a bare path means input=PATH
 
-Writes ``<stem>_cmetric.csv`` (or ``out=...``, .csv or .parquet): one row per vehicle with
-each style's mean SLE / SIE and the aggressiveness score; ``<stem>_cmetric_windows.parquet``
-(per window); ``<stem>_cmetric_centrality.png`` (closeness and degree over time of the
-chosen vehicles); ``<stem>_cmetric_config.yaml`` (the resolved config).
+Writes into ``outputs/cmetric/<stem>_<preset>/`` (or the folder ``out=DIR/``; the input's
+folder is never written to, so read-only data can be scored): ``<stem>_cmetric.csv``, one
+row per vehicle with each style's mean SLE / SIE, the aggressiveness score and whether the
+vehicle is flagged for having no evidence; ``<stem>_cmetric_windows.parquet`` (per window);
+``<stem>_cmetric_centrality.png`` (closeness and degree over time of the chosen vehicles);
+``config.yaml`` and ``command.txt``. A folder holding scores of other settings is refused.
+``out=FILE.csv`` or ``out=FILE.parquet`` writes that file and its side files beside it
+(``<stem>_config.yaml`` for the config).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from bgap.config import CMetricAppConfig, app, load
 from bgap.errors import ConfigError
+from bgap.runs import save_run_metadata
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -59,10 +64,18 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     if not cfg.input:
         raise ConfigError(f"input=None: give the trajectory table to score ({USAGE})")
     source = Path(cfg.input)
+    as_file = cfg.out and not cfg.out.endswith("/") and not Path(cfg.out).is_dir()
+    if as_file and Path(cfg.out).suffix not in (".csv", ".parquet"):
+        raise ConfigError(
+            f"out={cfg.out} is neither a folder nor a .csv/.parquet file; end a folder with /"
+        )
+    folder = (
+        None if as_file else Path(cfg.out or f"outputs/cmetric/{source.stem}_{cfg.cmetric.name}")
+    )
+    if folder is not None:
+        save_run_metadata(folder, dcfg)  # refuses a folder of other settings before scoring
     result = score_trajectories(source, cfg.cmetric, fps=cfg.fps, progress=True)
-    out = Path(cfg.out) if cfg.out else source.with_name(f"{source.stem}_cmetric.csv")
-    if out.is_dir() or (cfg.out or "").endswith("/"):
-        out = out / f"{source.stem}_cmetric.csv"
+    out = Path(cfg.out) if as_file else folder / f"{source.stem}_cmetric.csv"
     out.parent.mkdir(parents=True, exist_ok=True)
     stem = out.with_suffix("")
     if out.suffix == ".parquet":
@@ -70,7 +83,8 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     else:
         result.vehicles.to_csv(out, index=False)
     result.windows.to_parquet(f"{stem}_windows.parquet", index=False)
-    Path(f"{stem}_config.yaml").write_text(OmegaConf.to_yaml(dcfg, resolve=True))
+    if as_file:
+        Path(f"{stem}_config.yaml").write_text(OmegaConf.to_yaml(dcfg, resolve=True))
     vehicles = result.vehicles
     chosen = list(cfg.plot_vehicles)
     if not chosen:
@@ -78,7 +92,8 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
         ranked = first.sort_values("aggressiveness").vehicle_id.tolist()
         chosen = sorted(set(ranked[-2:] + ranked[:2]))
     plot_centrality(result, chosen, Path(f"{stem}_centrality.png"))
-    print(f"scored {len(vehicles)} vehicles -> {out}")
+    flagged = int(vehicles.flagged.sum())
+    print(f"scored {len(vehicles)} vehicles ({flagged} flagged: no evidence) -> {out}")
     if "label" in vehicles:
         print(vehicles.groupby("label").aggressiveness.describe().to_string())
         try:

@@ -13,6 +13,16 @@ metres, weighted by their Euclidean distance.
   adjacent to i before t. The neighbours a vehicle has in its own first frame are its
   baseline, not counted (else every vehicle would start with a jump as large as the
   traffic around it, which is not overspeeding).
+- **Net passes** (``degree_rule="net_passes"``, ours, for traffic where the paper's rule
+  is blind): +1 for each vehicle j that vehicle i leaves behind (j was ahead of i and is
+  now level or behind while adjacent and no faster, or j drops out of the radius behind
+  i, no faster), -1 for each vehicle that leaves i behind (the mirror events with j
+  faster), each pair counted at most once per direction. In sparse traffic an aggressive
+  driver passes the few cars near it in its first seconds, cars that were its neighbours
+  from its first frame (the paper's baseline never counts them), and then leaves them out
+  of the radius; a conservative driver is passed and left behind. Measured (README
+  "CMetric"): the paper's rule separates sparse traffic's classes at AUC 0.69, this one
+  at 0.98.
 
 Written as one compiled loop over frames (numba) because all-pairs shortest paths on many
 small graphs is exactly what neither numpy nor scipy.sparse.csgraph vectorise well: csgraph
@@ -27,6 +37,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 import pandas as pd
+
+from bgap.cmetric.params import DEGREE_RULES
 
 
 @dataclass
@@ -59,7 +71,11 @@ class Scene:
 
 
 def centralities(
-    scene: Scene, mu: float, chunk: int = 4096, progress: Callable[[int], object] | None = None
+    scene: Scene,
+    mu: float,
+    chunk: int = 4096,
+    progress: Callable[[int], object] | None = None,
+    degree_rule: str = "new_slower",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closeness and cumulative degree centrality, each (frames, vehicles), NaN if absent.
 
@@ -68,10 +84,16 @@ def centralities(
     """
     if mu <= 0:
         raise ValueError(f"mu={mu} must be a positive distance [m]")
+    if degree_rule not in DEGREE_RULES:
+        raise ValueError(f"degree_rule={degree_rule!r}: use one of {DEGREE_RULES}")
+    net = degree_rule == "net_passes"
     n_frames, n = scene.x.shape
     closeness = np.full((n_frames, n), np.nan)
     degree = np.full((n_frames, n), np.nan)
     seen = np.zeros((n, n), dtype=np.bool_)
+    # net passes: j seen ahead of i / behind i; gained (+1 counted) / lost (-1 counted);
+    # adjacent at the pair's previous common frame
+    pairs = np.zeros((5, n, n), dtype=np.bool_) if net else np.zeros((5, 1, 1), dtype=np.bool_)
     started = np.zeros(n, dtype=np.bool_)
     count = np.zeros(n)
     for lo in range(0, n_frames, chunk):
@@ -85,6 +107,8 @@ def centralities(
             seen,
             started,
             count,
+            net,
+            pairs,
             closeness[lo:hi],
             degree[lo:hi],
         )
@@ -95,7 +119,7 @@ def centralities(
 
 @numba.njit(cache=True)
 def _centralities(
-    x, y, speed, present, mu, seen, started, count, closeness, degree
+    x, y, speed, present, mu, seen, started, count, net, pairs, closeness, degree
 ):  # pragma: no cover - compiled
     n_frames, n = x.shape
     dist = np.empty((n, n))
@@ -117,8 +141,10 @@ def _centralities(
                 w = d if d < mu else inf
                 dist[a, b] = w
                 dist[b, a] = w
-        # cumulative degree: new, no-faster neighbours
-        for a in range(m):
+        if net:
+            _net_passes(x, speed, f, idx, m, dist, pairs, count, degree)
+        # cumulative degree: new, no-faster neighbours (the paper)
+        for a in range(m if not net else 0):
             i = idx[a]
             new = 0
             for b in range(m):
@@ -154,3 +180,39 @@ def _centralities(
                 closeness[f, idx[a]] = (reach / total) * (reach / (m - 1.0))
             else:
                 closeness[f, idx[a]] = 0.0
+
+
+@numba.njit(cache=True)
+def _net_passes(x, speed, f, idx, m, dist, pairs, count, degree):  # pragma: no cover
+    """The ``net_passes`` degree at frame ``f`` (rule in the module docstring); ``dist``
+    holds the direct edges (inf: not adjacent)."""
+    ahead, behind, gained, lost, was = pairs[0], pairs[1], pairs[2], pairs[3], pairs[4]
+    for a in range(m):
+        i = idx[a]
+        new = 0
+        for b in range(m):
+            if b == a:
+                continue
+            j = idx[b]
+            adj = dist[a, b] != np.inf
+            slower = speed[f, j] <= speed[f, i]
+            if x[f, j] > x[f, i]:
+                ahead[i, j] = True
+            elif ahead[i, j] and adj and slower and not gained[i, j]:
+                gained[i, j] = True
+                new += 1
+            if x[f, j] < x[f, i]:
+                behind[i, j] = True
+            elif behind[i, j] and adj and not slower and not lost[i, j]:
+                lost[i, j] = True
+                new -= 1
+            if was[i, j] and not adj:  # j left the radius at this frame
+                if x[f, j] < x[f, i] and slower and not gained[i, j]:
+                    gained[i, j] = True
+                    new += 1
+                elif x[f, j] > x[f, i] and not slower and not lost[i, j]:
+                    lost[i, j] = True
+                    new -= 1
+            was[i, j] = adj
+        count[i] += new
+        degree[f, i] = count[i]

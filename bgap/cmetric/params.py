@@ -10,6 +10,10 @@ from dataclasses import dataclass, field
 
 from bgap.errors import check
 
+DEGREE_RULES = ("new_slower", "net_passes")
+EVIDENCE = ("all", "neighbours")
+AGGREGATES = ("mean", "max", "quantile")
+
 
 @dataclass
 class StyleWeights:
@@ -47,6 +51,18 @@ class CMetricConfig:
         default_factory=lambda: StyleWeights(overtaking=0.0013, overspeeding=0.165, weaving=0.22)
     )
     """Each style's likelihood is divided by its scale before weighting (units: SLE units)."""
+    degree_rule: str = "new_slower"
+    """``new_slower``: the paper's cumulative count of new, no-faster neighbours;
+    ``net_passes``: +1 per vehicle left behind, -1 per vehicle that leaves this one behind
+    (signed; see :mod:`bgap.cmetric.centrality`)."""
+    evidence: str = "all"
+    """``all``: every window counts (the paper); ``neighbours``: windows in which the
+    vehicle never had a neighbour within ``mu`` are missing evidence, not calm driving, and
+    a vehicle without any other window is flagged (``flagged``) and gets no score (NaN)."""
+    aggregate: str = "mean"
+    """How window scores make a vehicle's: ``mean``, ``max`` or ``quantile`` (``q``)."""
+    q: float = 0.9
+    """The quantile of window scores when ``aggregate=quantile``."""
 
     def __post_init__(self) -> None:
         for key in ("mu", "window", "stride", "epsilon"):
@@ -55,6 +71,14 @@ class CMetricConfig:
         check(self.degree >= 1, "cmetric.degree", self.degree, "must be >= 1")
         check(self.regularization >= 0, "cmetric.regularization", self.regularization, ">= 0")
         check(self.sharpness_min >= 0, "cmetric.sharpness_min", self.sharpness_min, ">= 0")
+        for key, allowed in (
+            ("degree_rule", DEGREE_RULES),
+            ("evidence", EVIDENCE),
+            ("aggregate", AGGREGATES),
+        ):
+            v = getattr(self, key)
+            check(v in allowed, f"cmetric.{key}", v, f"use one of {', '.join(allowed)}")
+        check(0 < self.q <= 1, "cmetric.q", self.q, "must be in (0, 1]")
         for style in ("overtaking", "overspeeding", "weaving"):
             w, s = getattr(self.weights, style), getattr(self.scales, style)
             check(w >= 0, f"cmetric.weights.{style}", w, "must be >= 0")

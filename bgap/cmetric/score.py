@@ -46,7 +46,9 @@ def score_trajectories(
     cent_parts, window_parts = [], []
     for episode, sub in table.groupby("episode", sort=True):
         scene = Scene.from_table(sub)
-        close, degree = centralities(scene, cfg.mu, progress=bar.update)
+        close, degree = centralities(
+            scene, cfg.mu, progress=bar.update, degree_rule=cfg.degree_rule
+        )
         fi, vi = np.nonzero(scene.present)
         cent_parts.append(
             pd.DataFrame(
@@ -91,10 +93,13 @@ def _scene_windows(
         t = np.concatenate([window_view(scene.times[run], s, w) for _, run, s in items])
         zc = np.concatenate([window_view(close[run, v], s, w) for v, run, s in items])
         zd = np.concatenate([window_view(degree[run, v], s, w) for v, run, s in items])
+        # share of the window's frames with a neighbour within mu (closeness 0: none)
+        ev = np.concatenate([window_view(close[run, v] > 0, s, w) for v, run, s in items])
         vid = np.concatenate([np.full(len(s), scene.vehicle_ids[v]) for v, _, s in items])
         cfit = fit_polynomials(t, zc, cfg.degree, cfg.regularization)
         dfit = fit_polynomials(t, zd, cfg.degree, cfg.regularization)
-        styles = window_styles(cfit, dfit, cfg.epsilon, cfg.sharpness_min)
+        signed = cfg.degree_rule == "net_passes"
+        styles = window_styles(cfit, dfit, cfg.epsilon, cfg.sharpness_min, signed)
         agg = window_aggressiveness(styles, cfg.weights, cfg.scales)
         parts.append(
             pd.DataFrame(
@@ -106,6 +111,7 @@ def _scene_windows(
                     **styles,
                     "aggressiveness": agg,
                     "conservative_sle": np.exp(-agg),
+                    "neighbours": ev.mean(axis=1),
                 }
             )
         )
@@ -115,12 +121,22 @@ def _scene_windows(
 
 
 def _vehicle_summary(windows: pd.DataFrame, cfg: CMetricConfig) -> pd.DataFrame:
+    """Per vehicle: mean SLE/SIE per style over its evidence windows, how many windows it
+    has and how many are evidence, ``flagged`` (no evidence at all) and the score."""
     columns = [f"{k}_{e}" for k in STYLES for e in ("sle", "sie")]
     columns += ["conservative_sle", "conservative_sie"]
-    grouped = windows.groupby(["episode", "vehicle_id"])
-    summary = grouped[columns].mean()
-    summary["windows"] = grouped.size()
-    summary["aggressiveness"] = 1.0 - np.exp(-grouped["aggressiveness"].mean())
+    keys = ["episode", "vehicle_id"]
+    counted = windows.assign(evidence=windows["neighbours"] > 0 if cfg.evidence != "all" else True)
+    every = counted.groupby(keys)
+    grouped = counted[counted["evidence"]].groupby(keys)
+    summary = grouped[columns].mean().reindex(every.size().index)
+    summary["windows"] = every.size()
+    summary["evidence_windows"] = every["evidence"].sum()
+    summary["flagged"] = summary["evidence_windows"] == 0
+    a = grouped["aggressiveness"]
+    m = {"mean": a.mean, "max": a.max, "quantile": lambda: a.quantile(cfg.q)}[cfg.aggregate]()
+    m = m.reindex(summary.index)
+    summary["aggressiveness"] = np.sign(m) * (1.0 - np.exp(-np.abs(m)))
     return summary.reset_index()
 
 
@@ -128,10 +144,14 @@ def label_auc(vehicles: pd.DataFrame, score: str = "aggressiveness") -> float:
     """ROC AUC of ``score`` for telling aggressive from conservative labels (Mann-Whitney U).
 
     1.0: every aggressive vehicle scores above every conservative one; 0.5: chance.
+    Vehicles without a score (flagged: no evidence) count at the median of the scored ones,
+    so flagging cannot raise the AUC by dropping hard cases.
     """
     from scipy.stats import rankdata
 
     sub = vehicles[vehicles["label"].isin(["aggressive", "conservative"])]
+    if sub[score].isna().any():
+        sub = sub.assign(**{score: sub[score].fillna(sub[score].median())})
     positive = (sub["label"] == "aggressive").to_numpy()
     n_pos, n_neg = positive.sum(), (~positive).sum()
     if n_pos == 0 or n_neg == 0:

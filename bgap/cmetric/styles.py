@@ -23,6 +23,12 @@ three aggressive styles k, and of a vehicle
 
     A = 1 - exp(-mean_w a_w)      in [0, 1), 0 for a vehicle whose centralities never move.
 
+With the signed ``net_passes`` degree a_w can be negative (the vehicle was passed); then
+``A = sign(m) (1 - exp(-|m|))`` with m the aggregate of a_w (the same number when m >= 0),
+in (-1, 1): below 0 means more evidence of being passed than of passing. The aggregate over
+windows is the mean (the paper's windows, averaged), the maximum (the paper's "maximum
+likelihood" read over a vehicle's whole log) or an upper quantile (``cmetric.aggregate``).
+
 The conservative SLE is exp(-a_w), near 1 exactly when the centrality slopes are near 0, as
 the paper describes conservative drivers.
 """
@@ -75,9 +81,18 @@ def sharpness(fit: Fit, tau_c: np.ndarray, epsilon: float, points: int = 9) -> n
 
 
 def window_styles(
-    closeness_fit: Fit, degree_fit: Fit, epsilon: float, sharpness_min: float
+    closeness_fit: Fit,
+    degree_fit: Fit,
+    epsilon: float,
+    sharpness_min: float,
+    signed_degree: bool = False,
 ) -> dict[str, np.ndarray]:
-    """SLE and SIE of every style for a batch of windows."""
+    """SLE and SIE of every style for a batch of windows.
+
+    With ``signed_degree`` (the ``net_passes`` degree, which falls when the vehicle is left
+    behind) the overspeeding SLE keeps the sign of the slope of largest magnitude: negative
+    is evidence of being passed, i.e. of conservative driving.
+    """
     d1c = np.abs(closeness_fit.derivative(1))
     d2c = np.abs(closeness_fit.derivative(2))
     tau_c, valid = critical_points(closeness_fit)
@@ -86,12 +101,20 @@ def window_styles(
     return {
         "overtaking_sle": d1c.max(axis=1),
         "overtaking_sie": d2c.max(axis=1),
-        "overspeeding_sle": np.abs(degree_fit.derivative(1)).max(axis=1),
+        "overspeeding_sle": _extreme(degree_fit.derivative(1), signed_degree),
         "overspeeding_sie": np.abs(degree_fit.derivative(2)).max(axis=1),
         "weaving_sle": weaving.sum(axis=1).astype(float),
         "weaving_sie": np.where(weaving, sharp, 0.0).max(axis=1, initial=0.0),
         "conservative_sie": 1.0 / (1.0 + d2c.max(axis=1)),
     }
+
+
+def _extreme(values: np.ndarray, signed: bool) -> np.ndarray:
+    """Per row, max |value|; with ``signed``, that value with its sign."""
+    magnitude = np.abs(values)
+    if not signed:
+        return magnitude.max(axis=1)
+    return np.take_along_axis(values, magnitude.argmax(axis=1)[:, None], axis=1)[:, 0]
 
 
 def window_aggressiveness(styles: dict[str, np.ndarray], weights, scales) -> np.ndarray:
