@@ -112,6 +112,7 @@ CASES = [
     ("cmetric", ["input={tmp}/no_y.csv"], r"missing column\(s\) \['y'\]"),
     ("cmetric", ["input={tmp}/nan.csv"], r"column 'x' has 1 NaN"),
     ("cmetric", ["input={tmp}/wrong_type.csv"], r"column 'x' has 1 NaN, infinite or non-numeric"),
+    ("cmetric", ["input={tmp}/nan.csv", "out={tmp}/scores.txt"], r"neither a folder nor a"),
     ("cmetric", ["input={tmp}/duplicate.csv"], r"1 duplicate \(episode, frame, vehicle_id\)"),
     ("cmetric", ["input={tmp}/unsorted.csv"], r"time is not increasing with frame"),
     ("cmetric", ["input={tmp}/one_vehicle.csv"], r"single vehicle"),

@@ -59,6 +59,7 @@ def plot_centrality(result, vehicle_ids, path: Path) -> None:
 def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     """Score ``cfg.input`` and write the scores, windows, plot and config."""
     from bgap.cmetric import score_trajectories
+    from bgap.cmetric.io import check_scoreable, load_trajectories
     from bgap.cmetric.score import label_auc
 
     if not cfg.input:
@@ -72,9 +73,11 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     folder = (
         None if as_file else Path(cfg.out or f"outputs/cmetric/{source.stem}_{cfg.cmetric.name}")
     )
+    table = load_trajectories(source, fps=cfg.fps)  # a bad table fails before anything is written
+    check_scoreable(table)
     if folder is not None:
         save_run_metadata(folder, dcfg)  # refuses a folder of other settings before scoring
-    result = score_trajectories(source, cfg.cmetric, fps=cfg.fps, progress=True)
+    result = score_trajectories(table, cfg.cmetric, fps=cfg.fps, progress=True)
     out = Path(cfg.out) if as_file else folder / f"{source.stem}_cmetric.csv"
     out.parent.mkdir(parents=True, exist_ok=True)
     stem = out.with_suffix("")
