@@ -28,6 +28,7 @@ from omegaconf import DictConfig, OmegaConf
 from bgap.agents.config import AgentConfig
 from bgap.behaviors import BehaviorConfig, DriverParams
 from bgap.cmetric.params import CMetricConfig
+from bgap.cmetric.search.params import CMetricSearchConfig
 from bgap.errors import check
 from bgap.presets import CONF_DIR
 from bgap.scenario import EnvConfig, RewardConfig, check_config, env_config
@@ -467,6 +468,7 @@ def register_configs() -> None:
     cs.store(group="reward", name="base_reward", node=RewardConfig)
     cs.store(group="cmetric", name="base_cmetric", node=CMetricConfig)
     cs.store(name="base_cmetric_app", node=CMetricAppConfig)
+    cs.store(name="base_cmetric_search", node=CMetricSearchConfig)
     cs.store(name="base_experiment", node=ExperimentConfig)
     cs.store(group="agent", name="base_agent", node=AgentConfig)
     cs.store(group="profile", name="base_profile", node=ProfileConfig)
