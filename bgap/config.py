@@ -29,6 +29,7 @@ from bgap.agents.config import AgentConfig
 from bgap.behaviors import BehaviorConfig, DriverParams
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.search.params import CMetricSearchConfig
+from bgap.datasets.sumo import SumoConfig
 from bgap.errors import check
 from bgap.presets import CONF_DIR
 from bgap.scenario import EnvConfig, RewardConfig, check_config, env_config
@@ -102,6 +103,25 @@ class SimulateConfig(BaseConfig):
             self.render,
             "drawing needs backend=highway (the vector backend draws nothing)",
         )
+
+
+@dataclass
+class DatasetsConfig:
+    """``python -m bgap.datasets sumo [overrides]``: labelled traffic from outside bgap."""
+
+    source: str = "sumo"
+    """Where the trajectories come from: ``sumo`` (:mod:`bgap.datasets.sumo`)."""
+    sumo: SumoConfig = field(default_factory=SumoConfig)
+    episodes: int = 10
+    seed: int = 0
+    """Episode ``k`` runs with seed ``seed + k``."""
+    out: Optional[str] = None
+    """Output folder; default ``outputs/datasets/<source>``."""
+
+    def __post_init__(self) -> None:
+        check(self.source in ("sumo",), "source", self.source, "use sumo")
+        check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
+        check(self.seed >= 0, "seed", self.seed, "must be >= 0")
 
 
 @dataclass
@@ -469,6 +489,7 @@ def register_configs() -> None:
     cs.store(group="cmetric", name="base_cmetric", node=CMetricConfig)
     cs.store(name="base_cmetric_app", node=CMetricAppConfig)
     cs.store(name="base_cmetric_search", node=CMetricSearchConfig)
+    cs.store(name="base_datasets", node=DatasetsConfig)
     cs.store(name="base_experiment", node=ExperimentConfig)
     cs.store(group="agent", name="base_agent", node=AgentConfig)
     cs.store(group="profile", name="base_profile", node=ProfileConfig)

@@ -171,6 +171,25 @@ def test_net_passes_count_a_slower_car_left_out_of_the_radius_once():
     np.testing.assert_array_equal(degree[:, 1], [0, 0] + [-1] * 6)  # B
 
 
+def test_spacing_is_the_median_nearest_neighbour_distance():
+    from bgap.cmetric.score import spacing
+
+    # frame 0: cars at 0, 10, 40 m (nearest: 10, 10, 30); frame 1: 0, 20 (20, 20); car 3 gone
+    rows = [(0, 1, 0.0, 0, 0, 0), (0, 2, 10.0, 0, 0, 0), (0, 3, 40.0, 0, 0, 0)]
+    rows += [(1, 1, 0.0, 0, 0, 0), (1, 2, 20.0, 0, 0, 0)]
+    assert spacing(scene_of(rows)) == pytest.approx(np.median([10, 10, 30, 20, 20]))
+
+
+def test_a_radius_relative_to_the_spacing_equals_the_fixed_radius_it_implies():
+    from bgap.cmetric.score import spacing
+
+    table = known_truth_scene()
+    typical = spacing(Scene.from_table(load_trajectories(table)))
+    relative = score_trajectories(table, CMetricConfig(mu_spacing=2.0)).vehicles
+    fixed = score_trajectories(table, CMetricConfig(mu=2.0 * typical)).vehicles
+    pd.testing.assert_frame_equal(relative, fixed)
+
+
 def test_unknown_degree_rule_is_refused():
     with pytest.raises(ValueError, match="degree_rule"):
         centralities(scene_of(_passing_rows()), 15.0, degree_rule="passes")

@@ -105,7 +105,11 @@ def test_search_runs_resumes_writes_a_preset_that_loads_everywhere(data, tmp_pat
     # the tuned row of the report is the best trial's parameters, and the preset loads
     monkeypatch.setenv("BGAP_PRESETS", str(out / "presets"))
     tuned = validate(compose("cmetric_app", ["cmetric=user_tuned", "input=x.csv"])).cmetric
-    assert tuned.mu == pytest.approx(study.best_params["mu"])
+    best = study.best_params
+    if best["scale"] == "fixed":
+        assert tuned.mu == pytest.approx(best["mu"]) and tuned.mu_spacing is None
+    else:
+        assert tuned.mu_spacing == pytest.approx(best["mu_spacing"])
     assert tuned.degree_rule == study.best_params["degree_rule"]
     assert paths["preset"] == out / "presets" / "cmetric" / "user_tuned.yaml"
     calibration = validate(compose("calibrate", ["cmetric=user_tuned"]))  # calibration too

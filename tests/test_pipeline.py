@@ -33,7 +33,12 @@ def pipeline(tmp_path_factory) -> Path:
     shutil.copytree(ROOT / "bgap", repo / "bgap")
     for name in ("dvc.yaml", "params.yaml", ".dvcignore"):
         shutil.copy(ROOT / name, repo / name)
-    for made_by_a_stage in ("behavior/calibrated", "reward/recipe", "agent/recipe"):
+    for made_by_a_stage in (
+        "behavior/calibrated",
+        "reward/recipe",
+        "agent/recipe",
+        "cmetric/tuned",
+    ):
         (repo / f"bgap/conf/{made_by_a_stage}.yaml").unlink(missing_ok=True)
     params = yaml.safe_load((repo / "params.yaml").read_text())
     params.update(profile="tiny", grid="tiny", eval_episodes=4)
@@ -51,6 +56,12 @@ def pipeline(tmp_path_factory) -> Path:
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
     params["recipe"]["sweep_episodes"] = 4
     params["parity"] = {"episodes": 3, "duration": 3}
+    search = params["cmetric_search"]
+    search.update(trials=2, radii="[null]")
+    search["data"] = {k: {**search["data"][k], "episodes": 4} for k in ("sparse-paper-mix50",)}
+    search["data"]["dense-paper-mix50"] = {**params["cmetric_search"]["data"]["dense-paper-mix50"]}
+    search["data"]["dense-paper-mix50"]["episodes"] = 2
+    search["sumo"] = {"sumo-krauss-dense": {**search["sumo"]["sumo-krauss-dense"], "episodes": 1}}
     (repo / "params.yaml").write_text(yaml.safe_dump(params))
     _run(["git", "init", "-q"], repo)
     _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "add", "-A"], repo)
@@ -123,6 +134,18 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
         ("authors", "default"),
     }  # fmt: skip
     assert "Checkpoints the trainings kept" in (pipeline / "results/README.md").read_text()
+    # CMetric's search: every bgap table in both parts, SUMO's in validation only, and the
+    # tuned preset it wrote is a valid CMetric config
+    auc = pd.read_csv(pipeline / "results/cmetric/auc.csv")
+    assert set(zip(auc.dataset, auc.part, strict=True)) == {
+        ("dense-paper-mix50", "search"), ("dense-paper-mix50", "validation"),
+        ("sparse-paper-mix50", "search"), ("sparse-paper-mix50", "validation"),
+        ("sumo-krauss-dense", "validation"),
+    }  # fmt: skip
+    from bgap.cmetric.params import CMetricConfig
+
+    tuned = load_preset(CMetricConfig, pipeline / "bgap/conf/cmetric/tuned.yaml")
+    assert tuned.name == "tuned"
     for name in ("fig4_authors.png", "paper_vs_ours.png"):
         assert (pipeline / "results/figures" / name).stat().st_size > 0
     # Fig. 4 draws both families (green and grey); Fig. 6 one colour per radius

@@ -7,6 +7,7 @@ take it directly (``score_trajectories(table, CMetricConfig(mu=60))``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 from bgap.errors import check
 
@@ -31,6 +32,10 @@ class CMetricConfig:
     name: str = "default"
     mu: float = 30.0
     """Traffic-graph radius [m]: an edge joins vehicles closer than this."""
+    mu_spacing: Optional[float] = None
+    """When set, each scene's radius is this many times its typical spacing (the median
+    distance from a vehicle to its nearest neighbour, :func:`bgap.cmetric.score.spacing`)
+    instead of ``mu``: one setting for dense and sparse traffic alike."""
     window: float = 3.0
     """Length of the sliding windows the centrality polynomials are fitted on [s]."""
     stride: float = 1.0
@@ -79,6 +84,12 @@ class CMetricConfig:
             v = getattr(self, key)
             check(v in allowed, f"cmetric.{key}", v, f"use one of {', '.join(allowed)}")
         check(0 < self.q <= 1, "cmetric.q", self.q, "must be in (0, 1]")
+        check(
+            self.mu_spacing is None or self.mu_spacing > 0,
+            "cmetric.mu_spacing",
+            self.mu_spacing,
+            "must be > 0 (times the median nearest-neighbour distance) or null",
+        )
         for style in ("overtaking", "overspeeding", "weaving"):
             w, s = getattr(self.weights, style), getattr(self.scales, style)
             check(w >= 0, f"cmetric.weights.{style}", w, "must be >= 0")

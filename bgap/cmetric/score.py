@@ -46,9 +46,8 @@ def score_trajectories(
     cent_parts, window_parts = [], []
     for episode, sub in table.groupby("episode", sort=True):
         scene = Scene.from_table(sub)
-        close, degree = centralities(
-            scene, cfg.mu, progress=bar.update, degree_rule=cfg.degree_rule
-        )
+        mu = cfg.mu if cfg.mu_spacing is None else cfg.mu_spacing * spacing(scene)
+        close, degree = centralities(scene, mu, progress=bar.update, degree_rule=cfg.degree_rule)
         fi, vi = np.nonzero(scene.present)
         cent_parts.append(
             pd.DataFrame(
@@ -70,6 +69,20 @@ def score_trajectories(
     if labels is not None:
         vehicles = vehicles.join(labels, on=["episode", "vehicle_id"])
     return CMetricResult(centrality, windows, vehicles)
+
+
+def spacing(scene: Scene, frames: int = 600) -> float:
+    """The scene's typical spacing [m]: the median, over vehicles and frames, of the distance
+    from a vehicle to its nearest neighbour (at most ``frames`` evenly spaced frames are
+    read; a scene that never has two vehicles at once counts as 1 km)."""
+    step = max(1, len(scene.frames) // frames)
+    x, y, present = scene.x[::step], scene.y[::step], scene.present[::step]
+    d = np.hypot(x[:, :, None] - x[:, None, :], y[:, :, None] - y[:, None, :])
+    d[:, np.arange(d.shape[1]), np.arange(d.shape[1])] = np.inf
+    d[np.isnan(d)] = np.inf
+    nearest = d.min(axis=2)[present]
+    nearest = nearest[np.isfinite(nearest)]
+    return float(np.median(nearest)) if len(nearest) else 1000.0
 
 
 def _scene_windows(

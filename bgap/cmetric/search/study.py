@@ -81,13 +81,15 @@ def suggest(trial, start: CMetricConfig) -> CMetricConfig:
 
     Weights are searched relative to overspeeding's (fixed at 1); the scales stay, since a
     weight and a scale only act through their ratio."""
+    scale = trial.suggest_categorical("scale", ["fixed", "spacing"])
     window = trial.suggest_float("window", 1.5, 6.0)
     degree = trial.suggest_int("degree", 2, 4)
     aggregate = trial.suggest_categorical("aggregate", list(AGGREGATES))
     return replace(
         start,
         name="tuned",
-        mu=trial.suggest_float("mu", 15.0, 150.0, log=True),
+        mu=trial.suggest_float("mu", 15.0, 150.0, log=True) if scale == "fixed" else start.mu,
+        mu_spacing=trial.suggest_float("mu_spacing", 1.0, 5.0) if scale == "spacing" else None,
         window=window,
         stride=trial.suggest_float("stride", 0.5, min(2.0, window)),
         degree=degree,
@@ -108,9 +110,12 @@ def start_params(start: CMetricConfig) -> dict[str, Any]:
     """The starting preset as a point of the search space (enqueued as trial 0)."""
     values = {
         k: getattr(start, k)
-        for k in ("window", "degree", "aggregate", "mu", "stride", "epsilon")
-        + ("degree_rule", "evidence")
+        for k in ("window", "degree", "aggregate", "stride", "epsilon", "degree_rule", "evidence")
     }
+    if start.mu_spacing is None:
+        values |= {"scale": "fixed", "mu": start.mu}
+    else:
+        values |= {"scale": "spacing", "mu_spacing": start.mu_spacing}
     values["stride"] = min(values["stride"], values["window"], 2.0)
     values |= {"w_overtaking": start.weights.overtaking, "w_weaving": start.weights.weaving}
     if start.aggregate == "quantile":

@@ -1,0 +1,84 @@
+"""A second simulator's trajectories: SUMO recorded into bgap's trajectory table."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bgap.cmetric.io import load_trajectories
+from bgap.datasets.sumo import SumoConfig, record
+from bgap.recorder import COLUMNS
+
+SMALL = SumoConfig(lanes=3, length=2000.0, flow=0.5, warmup=60.0, duration=8.0, ego_position=800)
+
+
+@pytest.fixture(scope="module")
+def table() -> pd.DataFrame:
+    return record(SMALL, episodes=2, seed=5)
+
+
+def test_table_has_bgaps_schema_and_reads_as_trajectories(table):
+    assert list(table.columns) == COLUMNS
+    assert set(table.label) == {"aggressive", "conservative", "ego"}
+    assert sorted(table.episode.unique()) == [0, 1]
+    ego = table[table.is_ego]
+    assert (ego.vehicle_id == 0).all() and (ego.label == "ego").all()
+    assert ego.groupby("episode").frame.nunique().eq(round(SMALL.duration / 0.067)).all()
+    assert table.lane.between(0, SMALL.lanes - 1).all()
+    np.testing.assert_allclose(table.time, table.frame * 0.067, atol=1e-9)  # SUMO's ms clock
+    load_trajectories(table)  # CMetric's validation passes
+
+
+def test_positions_follow_the_recorded_speeds(table):
+    # SUMO's default (Euler) update: x(t + dt) = x(t) + v(t + dt) dt along the road; steps
+    # in which a driver brakes or dawdles depart by up to ~1 %, the typical step by far
+    # less: a wrong clock (1/15 s instead of SUMO's 0.067 s) would shift every step 0.5 %
+    one = table.sort_values(["episode", "vehicle_id", "frame"])
+    same = one.groupby(["episode", "vehicle_id"])
+    dx, dt = same.x.diff().dropna(), same.time.diff().dropna()
+    moved = one.loc[dx.index, "vx"] * dt
+    error = np.abs(dx - moved) / moved.clip(lower=0.1)
+    assert np.median(error) < 1e-3 and error.max() < 0.02
+
+
+def test_driver_types_set_the_speeds_sumo_defines(table):
+    # desired speed = speedFactor x limit: 1.3 x 30 for aggressive, 0.85 x 30 conservative
+    speed = table.groupby("label").speed.mean()
+    assert speed["aggressive"] > 1.2 * speed["conservative"]
+    assert speed["conservative"] < 0.85 * SMALL.speed_limit * 1.1
+
+
+def test_same_seed_same_table_other_seed_other_table(table):
+    again = record(SMALL, episodes=2, seed=5)
+    pd.testing.assert_frame_equal(again, table)
+    other = record(SMALL, episodes=1, seed=6)
+    assert not other.equals(table[table.episode == 0])
+
+
+def test_command_writes_a_dataset_and_refuses_bad_values(tmp_path):
+    def datasets(*args):
+        return subprocess.run(
+            [sys.executable, "-m", "bgap.datasets", "sumo", *args],
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
+
+    small = [
+        "episodes=1",
+        "sumo.warmup=30",
+        "sumo.duration=3",
+        "sumo.length=1500",
+        "sumo.ego_position=500",
+    ]
+    done = datasets(*small, f"out={tmp_path / 'sumo'}")
+    assert done.returncode == 0, done.stderr
+    written = pd.read_parquet(tmp_path / "sumo" / "trajectories.parquet")
+    assert len(written) > 0 and (tmp_path / "sumo" / "config.yaml").exists()
+    bad = datasets("sumo.flow=2", f"out={tmp_path / 'bad'}")
+    assert bad.returncode == 2 and "sumo.flow=2.0 is invalid" in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1 and not (tmp_path / "bad").exists()
