@@ -43,14 +43,7 @@ def test_closeness_disconnected_pair_and_isolated_car():
 def test_degree_car_passing_two_slower_cars():
     # Car 1 at 30 m/s from x = -100 passes cars 2 and 3 (20 m/s, one lane over, 20 m apart).
     # |10 t - 100| < sqrt(15^2 - 4^2) for t in {9, 10, 11}; |10 t - 120| < ... for {11, 12, 13}.
-    rows = []
-    for t in range(16):
-        rows += [
-            (t, 1, 30.0 * t - 100, 0.0, 30.0, 0.0),
-            (t, 2, 20.0 * t, 4.0, 20.0, 0.0),
-            (t, 3, 20.0 * t + 20, 4.0, 20.0, 0.0),
-        ]
-    s = scene_of(rows)
+    s = scene_of(_passing_rows())
     expected_1 = [0] * 9 + [1, 1] + [2] * 5
     for implementation in (centralities, centralities_networkx):
         _, degree = implementation(s, 15.0)

@@ -82,3 +82,27 @@ def test_command_writes_a_dataset_and_refuses_bad_values(tmp_path):
     bad = datasets("sumo.flow=2", f"out={tmp_path / 'bad'}")
     assert bad.returncode == 2 and "sumo.flow=2.0 is invalid" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1 and not (tmp_path / "bad").exists()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "car_following, flow, floor",
+    [("Krauss", 0.15, 0.82), ("Krauss", 0.6, 0.89), ("IDM", 0.15, 0.83), ("IDM", 0.6, 0.89)],
+)
+def test_tuned_cmetric_tells_sumos_driver_types_apart(car_following, flow, floor):
+    """The pipeline's SUMO validation data (10 episodes, seeds 100-109) scored with the
+    tuned preset, which SUMO never tuned. Measured (results/cmetric/report.md): Krauss
+    sparse 0.850, dense 0.910; IDM sparse 0.864, dense 0.911; none flagged. Floors about
+    one standard error below. Issue 16 asks for 0.9 in each condition: the sparse ones miss
+    it (README "Tuning CMetric")."""
+    from bgap.cmetric import score_trajectories
+    from bgap.cmetric.params import CMetricConfig
+    from bgap.cmetric.score import label_auc
+    from bgap.presets import load_preset, preset_path
+
+    tuned = load_preset(CMetricConfig, preset_path("cmetric", "tuned"))
+    table = record(SumoConfig(car_following=car_following, flow=flow), episodes=10, seed=100)
+    vehicles = score_trajectories(table, tuned).vehicles
+    vehicles = vehicles[vehicles.label != "ego"]
+    assert label_auc(vehicles) >= floor
+    assert vehicles.flagged.mean() <= 0.10

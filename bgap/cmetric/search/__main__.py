@@ -139,7 +139,7 @@ def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.D
     for kind in ("roc", "scores"):
         fig, axes = plt.subplots(rows_n, cols, figsize=(3.2 * cols, 2.8 * rows_n), squeeze=False)
         for ax, part in zip(axes.flat, valid, strict=False):  # more axes than parts
-            for preset in ("default", "tuned"):
+            for preset in presets:
                 s = scores[(preset, part.dataset, part.part)]
                 filled = s.aggressiveness.fillna(s.aggressiveness.median())
                 if kind == "roc":
