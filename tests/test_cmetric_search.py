@@ -17,13 +17,14 @@ from tests.conftest import make_cfg
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory) -> Path:
-    """Two labelled tables as bgap.simulate writes them: sparse (8 episodes) and dense (2)."""
+    """Two labelled tables as bgap.simulate writes them: sparse traffic at mixes 0.5 and
+    0.8 (8 episodes of 30 s each; dense traffic would cost the suite time, not coverage)."""
     from bgap.simulate import simulate
 
     root = tmp_path_factory.mktemp("cmetric_data")
-    for density, episodes in (("sparse", 8), ("dense", 2)):
-        cfg = make_cfg(f"env={density}", "mix=0.5", "seed=7000", "env.duration=30")
-        folder = root / density
+    for name, mix, episodes in (("mix50", 0.5, 8), ("mix80", 0.8, 8)):
+        cfg = make_cfg("env=sparse", f"mix={mix}", "seed=7000", "env.duration=30", "backend=vector")
+        folder = root / name
         folder.mkdir()
         simulate(cfg, episodes, False).to_parquet(folder / "trajectories.parquet")
     return root
@@ -54,22 +55,22 @@ def test_objective_is_the_worst_auc_less_the_flagged_excess():
 
 def test_datasets_split_by_episode_parity_and_validation_data_never_tunes(data, tmp_path):
     (tmp_path / "other").mkdir()
-    other = pd.read_parquet(data / "sparse" / "trajectories.parquet")
+    other = pd.read_parquet(data / "mix50" / "trajectories.parquet")
     other.to_parquet(tmp_path / "other" / "sumo_like.parquet")
     cfg, _ = search_cfg(
         f"data_dir={data}", f"validation_dir={tmp_path / 'other'}", "radii=[null,80]"
     )
     names = [(d.name, d.split) for d in cfg.datasets]
     assert names == [
-        ("dense", True), ("dense@80m", True), ("sparse", True), ("sparse@80m", True),
+        ("mix50", True), ("mix50@80m", True), ("mix80", True), ("mix80@80m", True),
         ("sumo_like", False), ("sumo_like@80m", False),
     ]  # fmt: skip
     parts = load_parts(cfg)
     by = {(p.dataset, p.part): p.table for p in parts}
-    search, valid = by[("sparse", "search")], by[("sparse", "validation")]
+    search, valid = by[("mix50", "search")], by[("mix50", "validation")]
     assert set(search.episode) == {0, 2, 4, 6} and set(valid.episode) == {1, 3, 5, 7}
     assert ("sumo_like", "search") not in by and len(by[("sumo_like", "validation")]) > 0
-    cropped = by[("sparse@80m", "search")]
+    cropped = by[("mix50@80m", "search")]
     assert len(cropped) < len(search)  # the crop dropped far vehicles
 
 
@@ -84,7 +85,7 @@ def test_search_runs_resumes_writes_a_preset_that_loads_everywhere(data, tmp_pat
     auc = pd.read_csv(out / "auc.csv")
     assert set(auc.preset) == {"default", "robust", "tuned"}
     assert set(zip(auc.dataset, auc.part, strict=True)) == {
-        (d, p) for d in ("dense", "sparse") for p in ("search", "validation")
+        (d, p) for d in ("mix50", "mix80") for p in ("search", "validation")
     }
     for name in ("roc.png", "scores.png", "convergence.png", "config.yaml", "command.txt"):
         assert (out / name).stat().st_size > 0
@@ -136,7 +137,7 @@ def test_bad_search_settings_are_refused(data, tmp_path):
         search_cfg(f"data_dir={data}", "radii=[-5]")
     with pytest.raises(ConfigError, match="one must tune"):
         search_cfg(f"validation_dir={data}")
-    table = pd.read_parquet(data / "sparse" / "trajectories.parquet")
+    table = pd.read_parquet(data / "mix50" / "trajectories.parquet")
     table[table.label != "aggressive"].to_parquet(tmp_path / "one_class.parquet")
     cfg = CMetricSearchConfig(datasets=[SearchDataset(str(tmp_path / "one_class.parquet"))])
     with pytest.raises(ValueError, match="aggressive and conservative"):

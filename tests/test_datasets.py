@@ -13,7 +13,7 @@ from bgap.cmetric.io import load_trajectories
 from bgap.datasets.sumo import SumoConfig, record
 from bgap.recorder import COLUMNS
 
-SMALL = SumoConfig(lanes=3, length=2000.0, flow=0.5, warmup=60.0, duration=8.0, ego_position=800)
+SMALL = SumoConfig(lanes=3, length=1500.0, flow=0.5, warmup=45.0, duration=6.0, ego_position=600)
 
 
 @pytest.fixture(scope="module")

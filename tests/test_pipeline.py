@@ -56,12 +56,13 @@ def pipeline(tmp_path_factory) -> Path:
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
     params["recipe"]["sweep_episodes"] = 4
     params["parity"] = {"episodes": 3, "duration": 3}
-    search = params["cmetric_search"]
+    search = params["cmetric_search"]  # two small bgap tables, one SUMO run, two trials
     search.update(trials=2, radii="[null]")
-    search["data"] = {k: {**search["data"][k], "episodes": 4} for k in ("sparse-paper-mix50",)}
-    search["data"]["dense-paper-mix50"] = {**params["cmetric_search"]["data"]["dense-paper-mix50"]}
-    search["data"]["dense-paper-mix50"]["episodes"] = 2
-    search["sumo"] = {"sumo-krauss-dense": {**search["sumo"]["sumo-krauss-dense"], "episodes": 1}}
+    data, sumo = search["data"], search["sumo"]
+    search["data"] = {
+        k: {**data[k], "episodes": 4} for k in ("sparse-paper-mix50", "sparse-paper-mix80")
+    }
+    search["sumo"] = {"sumo-krauss-dense": {**sumo["sumo-krauss-dense"], "episodes": 1}}
     (repo / "params.yaml").write_text(yaml.safe_dump(params))
     _run(["git", "init", "-q"], repo)
     _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "add", "-A"], repo)
@@ -138,8 +139,8 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     # tuned preset it wrote is a valid CMetric config
     auc = pd.read_csv(pipeline / "results/cmetric/auc.csv")
     assert set(zip(auc.dataset, auc.part, strict=True)) == {
-        ("dense-paper-mix50", "search"), ("dense-paper-mix50", "validation"),
         ("sparse-paper-mix50", "search"), ("sparse-paper-mix50", "validation"),
+        ("sparse-paper-mix80", "search"), ("sparse-paper-mix80", "validation"),
         ("sumo-krauss-dense", "validation"),
     }  # fmt: skip
     from bgap.cmetric.params import CMetricConfig
