@@ -307,22 +307,33 @@ def test_bad_inputs_raise_documented_errors(kind, message):
         load_trajectories(_bad(kind))
 
 
-def test_command_writes_scores_and_plot(tmp_path):
+def test_command_writes_scores_and_plot(tmp_path, monkeypatch, capsys):
     path = tmp_path / "scene.parquet"
     known_truth_scene().to_parquet(path)
     work = tmp_path / "work"
     work.mkdir()
+    monkeypatch.chdir(work)
 
     def cmetric(*args):
-        return subprocess.run(
-            [sys.executable, "-m", "bgap.cmetric", str(path), *args],
-            capture_output=True,
-            text=True,
-            timeout=300,
-            cwd=work,
-        )
+        """The command in this process (its first run below is a real subprocess)."""
+        from bgap.cmetric.__main__ import main
 
-    done = cmetric("cmetric.mu=60")
+        monkeypatch.setattr(sys, "argv", ["bgap.cmetric", str(path), *args])
+        try:
+            main()
+            code = 0
+        except SystemExit as stop:
+            code = stop.code
+        out = capsys.readouterr()
+        return subprocess.CompletedProcess(args, code, out.out, out.err)
+
+    done = subprocess.run(
+        [sys.executable, "-m", "bgap.cmetric", str(path), "cmetric.mu=60"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        cwd=work,
+    )
     assert done.returncode == 0, done.stderr
     folder = work / "outputs" / "cmetric" / "scene_default"  # never beside the input
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.parquet", "work"]
