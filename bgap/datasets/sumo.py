@@ -192,14 +192,20 @@ def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
             departPos=str(cfg.ego_position), departSpeed="desired",
         )  # fmt: skip
         rows, times = [], []
-        frame = 0
+        frame, waited = 0, 0
         while frame < int(round(cfg.duration / dt)):
             traci.simulationStep()
             ids = traci.vehicle.getIDList()
             if "ego" not in ids:
-                if frame == 0:
-                    continue  # the ego waits for a gap to enter
-                break  # the ego left the road: the episode ends
+                if frame > 0:
+                    break  # the ego left the road: the episode ends
+                waited += 1  # the ego waits for a gap to enter
+                if waited * dt > 60.0:
+                    raise RuntimeError(
+                        f"SUMO seed {seed}: the ego found no gap at {cfg.ego_position} m in "
+                        "60 s; lower sumo.flow or move sumo.ego_position"
+                    )
+                continue
             times.append(traci.simulation.getTime())
             for v in ids:
                 x, y = traci.vehicle.getPosition(v)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bgap.cmetric.io import check_scoreable, load_trajectories
+from bgap.cmetric.io import check_scoreable, load_trajectories, read_table
 from bgap.cmetric.params import AGGREGATES, DEGREE_RULES, EVIDENCE, CMetricConfig, StyleWeights
 from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.cmetric.search.params import CMetricSearchConfig
@@ -41,7 +41,7 @@ def load_parts(cfg: CMetricSearchConfig) -> list[Part]:
     """Every dataset, cropped and split by episode parity, as validated tables."""
     parts = []
     for d in cfg.datasets:
-        table = pd.read_parquet(d.path) if d.path.endswith(".parquet") else pd.read_csv(d.path)
+        table = read_table(d.path)
         name = d.name or Path(d.path).stem + (f"@{d.radius:g}m" if d.radius else "")
         if "label" not in table or not set(SCORED) <= set(table.label):
             raise ValueError(f"{d.path}: needs a label column with aggressive and conservative")
