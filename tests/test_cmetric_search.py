@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -51,6 +52,25 @@ def test_objective_is_the_worst_auc_less_the_flagged_excess():
     assert objective_value(parts, 0.10) == pytest.approx(0.95)
     parts.append({"auc": 0.99, "flagged": 0.30})  # 20 points over the allowance
     assert objective_value(parts, 0.10) == pytest.approx(0.79)
+    # with z = 1, a part counts with its AUC less one standard error
+    parts = [
+        {"auc": 0.97, "auc_se": 0.05, "flagged": 0.0},
+        {"auc": 0.95, "auc_se": 0.01, "flagged": 0.0},
+    ]
+    assert objective_value(parts, 0.10, z=1.0) == pytest.approx(0.92)
+
+
+def test_auc_standard_error_is_hanley_and_mcneils():
+    from bgap.cmetric.search.study import auc_standard_error
+
+    # At chance the formula is exact: the Mann-Whitney statistic's null variance is
+    # (n1 + n2 + 1) / (12 n1 n2), whatever the sample sizes
+    for n1, n2 in ((1000, 1000), (51, 58), (7, 300)):
+        exact = np.sqrt((n1 + n2 + 1) / (12 * n1 * n2))
+        assert auc_standard_error(0.5, n1, n2) == pytest.approx(exact, rel=1e-12)
+    # Hanley & McNeil's worked example (51 abnormal, 58 normal, A = 0.893): SE 0.032
+    assert auc_standard_error(0.893, 51, 58) == pytest.approx(0.032, abs=1e-3)
+    assert auc_standard_error(1.0, 30, 30) == 0.0  # perfect separation: no spread
 
 
 def test_datasets_split_by_episode_parity_and_validation_data_never_tunes(data, tmp_path):

@@ -37,6 +37,8 @@ from bgap.studies import open_storage, sqlite_url
 
 NOT_CONTENT = (*VOLATILE, "trials", "storage", "preset")
 """Settings a rerun may change without changing what the study holds."""
+ADDED_LATER = {"z": 0.0}
+"""Settings added after studies were first named, with the value those studies used."""
 
 
 def search(cfg: CMetricSearchConfig, progress: bool = True):
@@ -65,7 +67,7 @@ def search(cfg: CMetricSearchConfig, progress: bool = True):
         for r in results:
             trial.set_user_attr(f"auc {r['dataset']}", r["auc"])
             trial.set_user_attr(f"flagged {r['dataset']}", r["flagged"])
-        return objective_value(results, cfg.max_flagged)
+        return objective_value(results, cfg.max_flagged, cfg.z)
 
     done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
     if cfg.trials > done:
@@ -86,6 +88,9 @@ def study_name(cfg: CMetricSearchConfig) -> str:
     settings = OmegaConf.to_container(OmegaConf.structured(cfg))
     for key in (*NOT_CONTENT, "study"):
         settings.pop(key, None)
+    for key, value in ADDED_LATER.items():  # at their old value: the name stays the same
+        if settings.get(key) == value:
+            settings.pop(key)
     return f"cmetric-{digest([tables, settings])}"
 
 

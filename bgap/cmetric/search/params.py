@@ -41,6 +41,9 @@ class CMetricSearchConfig:
     trials: int = 60
     seed: int = 0
     """Seed of the TPE sampler."""
+    z: float = 0.0
+    """Each search part counts with its AUC less ``z`` standard errors (0: the AUC itself;
+    1: a one-sigma lower bound, which keeps the smallest parts from deciding by noise)."""
     max_flagged: float = 0.10
     """Largest share of a dataset's vehicles that may be flagged without a penalty."""
     fps: float = 15.0
@@ -67,6 +70,7 @@ class CMetricSearchConfig:
         check(len(self.datasets) >= 1, "datasets", self.datasets, "give at least one table")
         check(any(d.split for d in self.datasets), "datasets", "split", "one must tune")
         check(self.trials >= 1, "trials", self.trials, "must be >= 1")
+        check(self.z >= 0, "z", self.z, "must be >= 0 standard errors")
         check(0 <= self.max_flagged < 1, "max_flagged", self.max_flagged, "must be in [0, 1)")
         for d in self.datasets:
             check(Path(d.path).is_file(), "datasets.path", d.path, "no such file")

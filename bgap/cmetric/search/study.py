@@ -61,19 +61,37 @@ def evaluate(part: Part, cmetric: CMetricConfig) -> dict[str, Any]:
     """AUC (flagged vehicles at the median), flagged share, vehicles and their scores."""
     vehicles = score_trajectories(part.table, cmetric).vehicles
     vehicles = vehicles[vehicles.label.isin(SCORED)]
+    auc = label_auc(vehicles)
+    positives = int((vehicles.label == "aggressive").sum())
     return {
         "dataset": part.dataset,
         "part": part.part,
-        "auc": label_auc(vehicles),
+        "auc": auc,
+        "auc_se": auc_standard_error(auc, positives, len(vehicles) - positives),
         "flagged": float(vehicles.flagged.mean()),
         "vehicles": len(vehicles),
         "scores": vehicles[["label", "aggressiveness", "flagged"]],
     }
 
 
-def objective_value(results: list[dict[str, Any]], max_flagged: float) -> float:
-    """The worst AUC over the parts, less any flagged share above ``max_flagged``."""
-    return min(r["auc"] - max(0.0, r["flagged"] - max_flagged) for r in results)
+def auc_standard_error(auc: float, positives: int, negatives: int) -> float:
+    """Hanley and McNeil's (1982) standard error of an ROC AUC from its two sample sizes
+    (their eq. 2, with the exponential approximation of Q1 and Q2)."""
+    q1, q2 = auc / (2 - auc), 2 * auc**2 / (1 + auc)
+    var = (auc * (1 - auc) + (positives - 1) * (q1 - auc**2) + (negatives - 1) * (q2 - auc**2)) / (
+        positives * negatives
+    )
+    return float(np.sqrt(max(var, 0.0)))
+
+
+def objective_value(results: list[dict[str, Any]], max_flagged: float, z: float = 0.0) -> float:
+    """The worst AUC over the parts, less any flagged share above ``max_flagged``.
+
+    With ``z`` > 0 each part counts with its AUC less ``z`` standard errors: a small,
+    noisy part can then not decide the search by a lucky or unlucky draw alone."""
+    return min(
+        r["auc"] - z * r.get("auc_se", 0.0) - max(0.0, r["flagged"] - max_flagged) for r in results
+    )
 
 
 def suggest(trial, start: CMetricConfig) -> CMetricConfig:
