@@ -71,3 +71,10 @@ def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
         fail(prog, f"interrupted: {on_interrupt}", INTERRUPTED)
     except known_errors() as err:
         fail(prog, one_line(err))
+
+
+def bare_first_argument(key: str) -> None:
+    """Read a first command-line argument without ``=`` (``python -m bgap.cmetric PATH``,
+    ``python -m bgap.datasets sumo``) as ``key=<it>``, before Hydra parses the rest."""
+    if len(sys.argv) > 1 and "=" not in sys.argv[1] and not sys.argv[1].startswith("-"):
+        sys.argv[1] = f"{key}={sys.argv[1]}"

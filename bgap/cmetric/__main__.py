@@ -15,11 +15,11 @@ vehicle is flagged for having no evidence; ``<stem>_cmetric_windows.parquet`` (p
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from bgap.cli import bare_first_argument
 from bgap.config import CMetricAppConfig, app, load
 from bgap.errors import ConfigError
 from bgap.runs import save_run_metadata
@@ -112,8 +112,7 @@ def _hydra_main(dcfg: DictConfig) -> None:
 
 def main() -> None:
     """The Hydra app; a first argument without ``=`` (the old form) is taken as ``input=``."""
-    if len(sys.argv) > 1 and "=" not in sys.argv[1] and not sys.argv[1].startswith("-"):
-        sys.argv[1] = f"input={sys.argv[1]}"
+    bare_first_argument("input")
     _hydra_main()
 
 

@@ -8,12 +8,12 @@ refused; the same settings are recorded again identically (same seeds, same tabl
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from bgap.cli import bare_first_argument
 from bgap.config import DatasetsConfig, app, load
 from bgap.runs import save_run_metadata
 
@@ -40,8 +40,7 @@ def _hydra_main(dcfg: DictConfig) -> None:
 
 def main() -> None:
     """The Hydra app; a first argument without ``=`` names the source (``sumo``)."""
-    if len(sys.argv) > 1 and "=" not in sys.argv[1] and not sys.argv[1].startswith("-"):
-        sys.argv[1] = f"source={sys.argv[1]}"
+    bare_first_argument("source")
     _hydra_main()
 
 
