@@ -2,7 +2,18 @@
 
 from __future__ import annotations
 
-import numpy as np
+import os
+
+if "PYTEST_XDIST_WORKER" in os.environ:
+    # pytest-xdist runs one worker per core. Each worker's numba and torch thread pools (one
+    # thread per core each) would then oversubscribe the cores, and numba's parallel kernels
+    # wait for their slowest thread: the pipeline's evaluation stage ran 2.6x slower so on 2
+    # cores. One thread per worker, and per command a worker starts (they inherit it). Set
+    # before numba or torch is imported; results do not depend on the number of threads.
+    for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 import pytest
 
 from bgap.config import SimulateConfig, compose, validate
@@ -16,7 +27,7 @@ def pytest_sessionstart(session) -> None:
         warm_compiled_kernels()
 
 
-LONG_FILES = ("test_pipeline.py", "test_install.py", "test_sweep.py")
+LONG_FILES = ("test_pipeline.py", "test_pipeline_side.py", "test_install.py", "test_sweep.py")
 """Test files that take a minute or more: collected first, so that pytest-xdist's
 ``--dist loadfile`` starts them at once instead of leaving one to run alone at the end."""
 

@@ -9,6 +9,8 @@ import sys
 import zipfile
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -34,7 +36,11 @@ def _reuse_compiled_kernels(site: Path) -> None:
             shutil.copy2(index, copy.parent / "__pycache__" / index.name)
 
 
-def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(tmp_path):
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory) -> tuple[Path, dict]:
+    """The wheel built from a copy of this checkout, unpacked as an installed package ahead of
+    the editable install on the path; returns (that site folder, the environment to run in)."""
+    tmp_path = tmp_path_factory.mktemp("install")
     env = {**os.environ, "PYTHONPATH": ""}
     source = tmp_path / "source"  # setuptools builds in the source folder: use a copy
     shutil.copytree(ROOT / "bgap", source / "bgap", ignore=shutil.ignore_patterns("__pycache__"))
@@ -63,14 +69,31 @@ def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(t
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     _reuse_compiled_kernels(site)
-    work = tmp_path / "elsewhere"
-    work.mkdir()
     env["PYTHONPATH"] = str(site)  # ahead of the editable install of this checkout
-    where = _run([sys.executable, "-c", "import bgap; print(bgap.__file__)"], work, env)
+    return site, env
+
+
+def test_the_installed_package_ships_its_configuration(installed, tmp_path):
+    """The fast half of the slow test below: every config file of the checkout is in the
+    wheel, and a command composes and runs from another folder on the installed copy."""
+    site, env = installed
+    shipped = {p.relative_to(site) for p in (site / "bgap").rglob("*.yaml")}
+    ours = {p.relative_to(ROOT) for p in (ROOT / "bgap").rglob("*.yaml")}
+    assert ours <= shipped, sorted(ours - shipped)
+    where = _run([sys.executable, "-c", "import bgap; print(bgap.__file__)"], tmp_path, env)
     assert str(site) in where
+    args = ["episodes=1", "env.duration=2", "backend=vector", "out=sim"]
+    _run([sys.executable, "-m", "bgap.simulate", *args], tmp_path, env)
+    assert "name: paper" in (tmp_path / "sim/config.yaml").read_text()
+
+
+@pytest.mark.slow
+def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(installed, tmp_path):
+    site, env = installed
+    work = tmp_path
     out = _run([sys.executable, "-m", "bgap.run", "profile=tiny", "root=out"], work, env)
     assert "results in out/results/" in out
-    assert (work / "out/results").glob("*/summary.csv")
+    assert list((work / "out/results").glob("*/summary.csv"))
     out = _run(
         [
             sys.executable,

@@ -1,11 +1,9 @@
-"""The DVC pipeline end to end on a tiny profile, in a throwaway git repository."""
+"""The study's DVC pipeline end to end (calibrate, recipe, train, evaluate, figures) on a
+tiny profile, in a throwaway git repository. The stages that share nothing with it (CMetric's
+search, the backend parity) run beside it: tests/test_pipeline_side.py."""
 
 from __future__ import annotations
 
-import os
-import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,34 +11,12 @@ import pandas as pd
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.pipeline_repo import run
+
+STAGES = {"calibrate", "recipe", "train", "evaluate", "evaluate_stock", "figures"}
 
 
-def _run(args: list[str], cwd: Path) -> str:
-    env = {**os.environ, "PYTHONPATH": str(cwd)}  # the copied package, with its own conf/
-    env["PATH"] = f"{Path(sys.executable).parent}{os.pathsep}{env['PATH']}"
-    done = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=900)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    return done.stdout + done.stderr
-
-
-@pytest.fixture(scope="module")
-def pipeline(tmp_path_factory) -> Path:
-    from tests.conftest import warm_compiled_kernels
-
-    repo = tmp_path_factory.mktemp("study")
-    warm_compiled_kernels()  # the copy below keeps numba's cache: no compiling per stage
-    shutil.copytree(ROOT / "bgap", repo / "bgap")
-    for name in ("dvc.yaml", "params.yaml", ".dvcignore"):
-        shutil.copy(ROOT / name, repo / name)
-    for made_by_a_stage in (
-        "behavior/calibrated",
-        "reward/recipe",
-        "agent/recipe",
-        "cmetric/tuned",
-    ):
-        (repo / f"bgap/conf/{made_by_a_stage}.yaml").unlink(missing_ok=True)
-    params = yaml.safe_load((repo / "params.yaml").read_text())
+def _tiny(params: dict) -> None:
     params.update(profile="tiny", grid="tiny", eval_episodes=4)
     # the study in miniature: both arms (the ablation arms train the same way, with one
     # family: tests/test_figures.py), sparse only, one seed each;
@@ -55,21 +31,13 @@ def pipeline(tmp_path_factory) -> Path:
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
     params["recipe"]["sweep_episodes"] = 4
-    params["parity"] = {"episodes": 3, "duration": 3}
-    search = params["cmetric_search"]  # two small bgap tables, one SUMO run, two trials
-    search.update(trials=2, radii="[null]")
-    data, sumo = search["data"], search["sumo"]
-    search["data"] = {
-        k: {**data[k], "episodes": 4} for k in ("sparse-paper-mix50", "sparse-paper-mix80")
-    }
-    search["sumo"] = {"sumo-krauss-dense": {**sumo["sumo-krauss-dense"], "episodes": 1}}
-    (repo / "params.yaml").write_text(yaml.safe_dump(params))
-    _run(["git", "init", "-q"], repo)
-    _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "add", "-A"], repo)
-    _run(["git", "-c", "user.email=t@t", "-c", "user.name=t", "commit", "-qm", "study"], repo)
-    _run(["dvc", "init", "-q"], repo)
-    _run(["dvc", "repro"], repo)
-    return repo
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory) -> Path:
+    from tests.pipeline_repo import make_repo
+
+    return make_repo(tmp_path_factory.mktemp("study"), STAGES, _tiny)
 
 
 def _colour_pixels(path: Path, colour: str) -> int:
@@ -91,7 +59,6 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
         "outputs/pipeline/runs/main/sparse/sparse-behavior_rich-s0/best_model.zip",
         "outputs/pipeline/runs/main/sparse/sparse-default-s0/best_model.zip",
         "outputs/pipeline/runs/authors/sparse/sparse-default-s0/best_model.zip",
-        "results/parity/parity.csv",
         "dvc.lock",
     ):
         assert (pipeline / name).stat().st_size > 0, name
@@ -135,18 +102,6 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
         ("authors", "default"),
     }  # fmt: skip
     assert "Checkpoints the trainings kept" in (pipeline / "results/README.md").read_text()
-    # CMetric's search: every bgap table in both parts, SUMO's in validation only, and the
-    # tuned preset it wrote is a valid CMetric config
-    auc = pd.read_csv(pipeline / "results/cmetric/auc.csv")
-    assert set(zip(auc.dataset, auc.part, strict=True)) == {
-        ("sparse-paper-mix50", "search"), ("sparse-paper-mix50", "validation"),
-        ("sparse-paper-mix80", "search"), ("sparse-paper-mix80", "validation"),
-        ("sumo-krauss-dense", "validation"),
-    }  # fmt: skip
-    from bgap.cmetric.params import CMetricConfig
-
-    tuned = load_preset(CMetricConfig, pipeline / "bgap/conf/cmetric/tuned.yaml")
-    assert tuned.name == "tuned"
     for name in ("fig4_authors.png", "paper_vs_ours.png"):
         assert (pipeline / "results/figures" / name).stat().st_size > 0
     # Fig. 4 draws both families (green and grey); Fig. 6 one colour per radius
@@ -156,11 +111,29 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     assert _colour_pixels(fig6, "C0") > 50 and _colour_pixels(fig6, "C1") > 50
 
 
-def test_a_second_repro_does_nothing_and_a_parameter_reruns_only_its_stages(pipeline):
-    assert "up to date" in _run(["dvc", "repro"], pipeline)
+def _set_eval_episodes(pipeline: Path, episodes: int) -> None:
     params = yaml.safe_load((pipeline / "params.yaml").read_text())
-    params["eval_episodes"] = 5
+    params["eval_episodes"] = episodes
     (pipeline / "params.yaml").write_text(yaml.safe_dump(params))
-    out = _run(["dvc", "repro"], pipeline)
+
+
+def test_a_second_repro_does_nothing_and_a_parameter_marks_only_its_stages(pipeline):
+    """The fast half of the check below: DVC's own status, without rerunning anything."""
+    import json
+
+    assert "up to date" in run(["dvc", "repro"], pipeline)
+    _set_eval_episodes(pipeline, 5)
+    try:
+        changed = json.loads(run(["dvc", "status", "--json"], pipeline))
+    finally:
+        _set_eval_episodes(pipeline, 4)
+    assert set(changed) == {"evaluate", "evaluate_stock"}, changed
+    assert "up to date" in run(["dvc", "repro"], pipeline)
+
+
+@pytest.mark.slow
+def test_a_parameter_reruns_only_its_stages(pipeline):
+    _set_eval_episodes(pipeline, 5)
+    out = run(["dvc", "repro"], pipeline)
     ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
     assert ran == {"evaluate", "evaluate_stock", "figures"}, out[-2000:]

@@ -1,0 +1,52 @@
+"""The pipeline's stages that share nothing with the study's chain, run in their own
+throwaway repository beside tests/test_pipeline.py: CMetric's datasets and parameter search,
+and the backend parity study."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from tests.pipeline_repo import make_repo, run
+
+STAGES = {"cmetric_data", "cmetric_sumo", "cmetric_search", "parity"}
+
+
+def _tiny(params: dict) -> None:
+    params["parity"] = {"episodes": 3, "duration": 2}
+    search = params["cmetric_search"]  # two small bgap tables, one SUMO run, two trials
+    search.update(trials=2, radii="[null]")
+    data, sumo = search["data"], search["sumo"]
+    search["data"] = {
+        k: {**data[k], "episodes": 4} for k in ("sparse-paper-mix50", "sparse-paper-mix80")
+    }
+    search["sumo"] = {"sumo-krauss-dense": {**sumo["sumo-krauss-dense"], "episodes": 1}}
+
+
+@pytest.fixture(scope="module")
+def pipeline(tmp_path_factory) -> Path:
+    return make_repo(tmp_path_factory.mktemp("side"), STAGES, _tiny)
+
+
+def test_cmetric_search_scores_every_table_and_writes_a_valid_preset(pipeline):
+    from bgap.cmetric.params import CMetricConfig
+    from bgap.presets import load_preset
+
+    # every bgap table in both parts, SUMO's in validation only
+    auc = pd.read_csv(pipeline / "results/cmetric/auc.csv")
+    assert set(zip(auc.dataset, auc.part, strict=True)) == {
+        ("sparse-paper-mix50", "search"), ("sparse-paper-mix50", "validation"),
+        ("sparse-paper-mix80", "search"), ("sparse-paper-mix80", "validation"),
+        ("sumo-krauss-dense", "validation"),
+    }  # fmt: skip
+    assert ((auc.auc >= 0) & (auc.auc <= 1)).all()
+    tuned = load_preset(CMetricConfig, pipeline / "bgap/conf/cmetric/tuned.yaml")
+    assert tuned.name == "tuned"
+
+
+def test_parity_writes_one_row_per_backend_and_mix(pipeline):
+    parity = pd.read_csv(pipeline / "results/parity/parity.csv")
+    assert len(parity) > 0 and (pipeline / "results/parity/parity.png").stat().st_size > 0
+    assert "up to date" in run(["dvc", "repro"], pipeline)
