@@ -71,6 +71,14 @@ class BaseConfig:
             "is a calibration that ended outside its tolerance (converged: false in the "
             "preset); continue the calibration, or use it knowingly with behavior.converged=true",
         )
+        check(
+            self.reward.converged,
+            "reward",
+            self.reward.name,
+            "is from a sweep stopped before its trials were done (converged: false in the "
+            "preset); rerun the sweep to finish it, or use it knowingly with "
+            "reward.converged=true",
+        )
         check_config(env_config(self))  # the one validator both simulators run
 
 
@@ -253,6 +261,14 @@ class ExperimentConfig(BaseConfig):
     def __post_init__(self) -> None:
         super().__post_init__()
         check(self.policy in POLICIES, "policy", self.policy, f"use one of {POLICIES}")
+        check(
+            self.agent.converged,
+            "agent",
+            self.agent.name,
+            "is from a sweep stopped before its trials were done (converged: false in the "
+            "preset); rerun the sweep to finish it, or use it knowingly with "
+            "agent.converged=true",
+        )
         check(
             self.checkpoint in CHECKPOINTS,
             "checkpoint",

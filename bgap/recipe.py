@@ -42,7 +42,14 @@ from bgap.config import RecipeConfig, app, compose, load, validate
 from bgap.evaluate import crash_split
 from bgap.presets import selection_hint, write_preset
 from bgap.stats import t_interval
-from bgap.sweep import objective, study_name, sweep, validation_episodes, write_outputs
+from bgap.sweep import (
+    finished,
+    objective,
+    study_name,
+    sweep,
+    validation_episodes,
+    write_outputs,
+)
 from bgap.vocab import CRASH_KINDS
 
 GROUPS = ("reward", "agent")
@@ -216,8 +223,9 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         f"{best.collision_pct:.1f}% collisions at {best.avg_speed:.2f} m/s; idle "
         f"{best.idle_collision_pct:.1f}% at {best.idle_avg_speed:.2f} m/s)"
     )
+    converged = finished(study, cfg)
     for group in GROUPS:
-        node = replace(getattr(tcfg, group), name=cfg.preset_name)
+        node = replace(getattr(tcfg, group), name=cfg.preset_name, converged=converged)
         paths[f"preset_{group}"] = write_preset(
             node, group, preset_dir / group / f"{cfg.preset_name}.yaml", note
         )

@@ -24,8 +24,22 @@ VOLATILE = ("resume", "workers", "root", "out", "run_dir")
 """Settings that do not change what a folder holds (where it is, how fast it is made)."""
 
 
+UNNAMED = ("reward.converged", "agent.converged")
+"""Settings left out of folder and study names: they change nothing a run computes (and
+the names of runs made before they existed stay the same)."""
+
+
 def digest(values: Any) -> str:
-    """A short, stable hash of JSON-able ``values`` (folder and study names)."""
+    """A short, stable hash of JSON-able ``values`` (folder and study names); the
+    :data:`UNNAMED` settings of a config tree are left out."""
+    values = json.loads(json.dumps(values, default=str))  # a copy to prune
+    for key in UNNAMED:
+        *path, leaf = key.split(".")
+        node = values
+        for part in path:
+            node = node.get(part) if isinstance(node, dict) else None
+        if isinstance(node, dict):
+            node.pop(leaf, None)
     return hashlib.sha1(json.dumps(values, sort_keys=True, default=str).encode()).hexdigest()[:8]
 
 
@@ -50,7 +64,14 @@ def model_file(run_dir: str | Path, checkpoint: str = "best") -> Path:
     return best if checkpoint == "best" and best.exists() else Path(run_dir) / MODEL
 
 
-ADDED_LATER = {"learner": "sb3", "threads": 0, "policies": [], "checkpoint": "last"}
+ADDED_LATER = {
+    "learner": "sb3",
+    "threads": 0,
+    "policies": [],
+    "checkpoint": "last",
+    "reward.converged": True,
+    "agent.converged": True,
+}
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""
 

@@ -81,6 +81,9 @@ class RewardConfig:
     """Forward speeds [m/s] mapped linearly to r_HS in [0, 1]."""
     normalize: bool = True
     """Map the summed reward to [0, 1] using the most negative and most positive weights."""
+    converged: bool = True
+    """``false`` in a preset that a sweep wrote before it finished its trials: commands
+    refuse it unless ``reward.converged=true`` says it is used knowingly."""
 
     def __post_init__(self) -> None:
         lo, hi = self.speed_range

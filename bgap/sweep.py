@@ -223,6 +223,21 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     return study
 
 
+def finished(study: optuna.Study, cfg: SweepConfig) -> bool:
+    """Whether the study holds its ``cfg.trials`` finished (complete or pruned) trials: a
+    sweep stopped before (failed trials, an interruption) writes presets marked
+    ``converged: false`` and says so."""
+    done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    count = len(study.get_trials(deepcopy=False, states=done))
+    if count < cfg.trials:
+        warnings.warn(
+            f"the study {study.study_name} holds {count} of its {cfg.trials} trials: its "
+            "preset is marked converged: false; rerun the same command to finish it",
+            stacklevel=2,
+        )
+    return count >= cfg.trials
+
+
 def chosen_trial(study: optuna.Study, cfg: SweepConfig) -> optuna.trial.FrozenTrial:
     """Single and constrained mode: the best trial. Multi: the Pareto trial with the best
     scalarisation."""
@@ -299,16 +314,19 @@ def write_outputs(
     plt.close(fig)
     paths["plot"] = out / "pareto.png"
     if cfg.write_preset:
-        paths.update({f"preset_{g}": path for g, path in write_tuned(cfg, chosen).items()})
+        paths.update({f"preset_{g}": path for g, path in write_tuned(cfg, study, chosen).items()})
     (out / "chosen.json").write_text(
         json.dumps({"trial": chosen.number, "params": chosen.params, **chosen.user_attrs}, indent=1)
     )
     return paths
 
 
-def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> dict[str, Path]:
+def write_tuned(
+    cfg: SweepConfig, study: optuna.Study, trial: optuna.trial.FrozenTrial
+) -> dict[str, Path]:
     """The chosen trial's config groups (reward, agent) as presets: ``sweep.preset`` for a
-    one-group search, else ``<root>/presets/<group>/user_tuned.yaml`` per group."""
+    one-group search, else ``<root>/presets/<group>/user_tuned.yaml`` per group; marked
+    ``converged: false`` where the study has not :func:`finished`."""
     groups = sorted({key.split(".")[0] for key in trial.params})
     if cfg.preset and len(groups) > 1:
         raise ConfigError(
@@ -321,12 +339,11 @@ def write_tuned(cfg: SweepConfig, trial: optuna.trial.FrozenTrial) -> dict[str, 
         f"(trial {trial.number}: {json.dumps(trial.user_attrs.get('collision_pct'))}% "
         f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)"
     )
-    paths = {}
+    paths, converged = {}, finished(study, cfg)
     for group in groups:
         path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
-        paths[group] = write_preset(
-            replace(getattr(tcfg, group), name=path.stem), group, path, note
-        )
+        node = replace(getattr(tcfg, group), name=path.stem, converged=converged)
+        paths[group] = write_preset(node, group, path, note)
     return paths
 
 

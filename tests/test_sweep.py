@@ -54,10 +54,21 @@ def test_multi_objective_sweep_writes_pareto_front_and_preset(tmp_path):
 
 
 def test_resumed_sweep_continues_its_trial_count(tmp_path):
+    from bgap.presets import load_preset
+    from bgap.scenario import RewardConfig
+
     first = sweep(_cfg(tmp_path, "trials=2", "mode=single"), progress=False)
     numbers = [t.number for t in first.trials]
+    # the same study read as a sweep of 4 trials stopped after 2: its preset says so
+    with pytest.warns(UserWarning, match="holds 2 of its 4 trials"):
+        write_outputs(first, _cfg(tmp_path, "trials=4", "mode=single"))
+    assert not load_preset(RewardConfig, tmp_path / "tuned.yaml").converged
+    with pytest.raises(ConfigError, match="sweep stopped before its trials were done"):
+        validate(compose("train", ["reward.converged=false"]))
     again = sweep(_cfg(tmp_path, "trials=4", "mode=single"), progress=False)
     assert numbers == [0, 1] and [t.number for t in again.trials] == [0, 1, 2, 3]
+    write_outputs(again, _cfg(tmp_path, "trials=4", "mode=single"))
+    assert load_preset(RewardConfig, tmp_path / "tuned.yaml").converged
 
 
 def test_bad_search_spaces_fail_before_training(tmp_path, monkeypatch):

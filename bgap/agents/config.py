@@ -32,6 +32,9 @@ class AgentConfig:
     max_grad_norm: float = 10.0
     replay: str = "per"
     """``per`` (prioritized, the paper) or ``uniform`` (SB3's buffer, the authors' code)."""
+    converged: bool = True
+    """``false`` in a preset that a sweep wrote before it finished its trials: commands
+    refuse it unless ``agent.converged=true`` says it is used knowingly."""
     per_alpha: float = 0.6
     per_beta0: float = 0.4
 
