@@ -73,8 +73,11 @@ def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
         fail(prog, one_line(err))
 
 
-def bare_first_argument(key: str) -> None:
-    """Read a first command-line argument without ``=`` (``python -m bgap.cmetric PATH``,
-    ``python -m bgap.datasets sumo``) as ``key=<it>``, before Hydra parses the rest."""
-    if len(sys.argv) > 1 and "=" not in sys.argv[1] and not sys.argv[1].startswith("-"):
-        sys.argv[1] = f"{key}={sys.argv[1]}"
+def bare_first_argument(*keys: str) -> None:
+    """Read the leading command-line arguments without ``=`` (``python -m bgap.cmetric
+    PATH``, ``python -m bgap.datasets highd PATH``) as ``key=<it>``, one key each in order,
+    before Hydra parses the rest."""
+    for i, key in enumerate(keys, start=1):
+        if len(sys.argv) <= i or "=" in sys.argv[i] or sys.argv[i].startswith("-"):
+            return
+        sys.argv[i] = f"{key}={sys.argv[i]}"

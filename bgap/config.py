@@ -115,10 +115,15 @@ class SimulateConfig(BaseConfig):
 
 @dataclass
 class DatasetsConfig:
-    """``python -m bgap.datasets sumo [overrides]``: labelled traffic from outside bgap."""
+    """``python -m bgap.datasets SOURCE [PATH] [overrides]``: traffic from outside bgap."""
 
     source: str = "sumo"
-    """Where the trajectories come from: ``sumo`` (:mod:`bgap.datasets.sumo`)."""
+    """Where the trajectories come from: ``sumo`` (recorded by :mod:`bgap.datasets.sumo`),
+    ``highd`` or ``ngsim`` (the files at ``path`` converted: :mod:`bgap.datasets.highd`,
+    :mod:`bgap.datasets.ngsim`)."""
+    path: Optional[str] = None
+    """``highd``: a recording's ``XX_tracks.csv`` or a folder of them; ``ngsim``: a
+    trajectory file (``.csv`` or the original ``.txt``)."""
     sumo: SumoConfig = field(default_factory=SumoConfig)
     episodes: int = 10
     seed: int = 0
@@ -127,7 +132,14 @@ class DatasetsConfig:
     """Output folder; default ``outputs/datasets/<source>``."""
 
     def __post_init__(self) -> None:
-        check(self.source in ("sumo",), "source", self.source, "use sumo")
+        sources = ("sumo", "highd", "ngsim")
+        check(self.source in sources, "source", self.source, f"use one of {sources}")
+        check(
+            self.source == "sumo" or self.path is not None,
+            "path",
+            self.path,
+            f"give the {self.source} file or folder: python -m bgap.datasets {self.source} PATH",
+        )
         check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
         check(self.seed >= 0, "seed", self.seed, "must be >= 0")
 

@@ -1,9 +1,10 @@
-"""``python -m bgap.datasets sumo [sumo.flow=0.6 sumo.car_following=IDM episodes=30 ...]``.
+"""``python -m bgap.datasets sumo [sumo.flow=0.6 sumo.car_following=IDM episodes=30 ...]``,
+``python -m bgap.datasets highd PATH``, ``python -m bgap.datasets ngsim PATH``.
 
-Writes ``<out>/trajectories.parquet`` (bgap's trajectory table, labelled ``aggressive``,
-``conservative`` and ``ego``), ``config.yaml`` and ``command.txt``; default
-``out=outputs/datasets/<source>``. A folder holding a dataset of other settings is
-refused; the same settings are recorded again identically (same seeds, same table).
+Writes ``<out>/trajectories.parquet`` (bgap's trajectory table: SUMO's labelled
+``aggressive``, ``conservative`` and ``ego``; highD's and NGSIM's by vehicle class),
+``config.yaml`` and ``command.txt``; default ``out=outputs/datasets/<source>``. A folder
+holding a dataset of other settings is refused; the same settings give the same table.
 """
 
 from __future__ import annotations
@@ -19,17 +20,28 @@ from bgap.runs import save_run_metadata
 
 
 def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
-    """Record the dataset ``cfg.source`` names into ``cfg.out``."""
-    from bgap.datasets.sumo import record, sumo_home
+    """Record (SUMO) or convert (highD, NGSIM) the dataset ``cfg.source`` names into
+    ``cfg.out``."""
+    if cfg.source == "sumo":
+        from bgap.datasets.sumo import record, sumo_home
 
-    sumo_home()  # a missing optional extra fails before any folder is made
-    out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)
-    with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
-        table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)
+        sumo_home()  # a missing optional extra fails before any folder is made
+        out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)
+        with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
+            table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)
+    else:
+        from importlib import import_module
+
+        from bgap.cmetric.io import load_trajectories
+
+        table = import_module(f"bgap.datasets.{cfg.source}").read(cfg.path)
+        load_trajectories(table)  # CMetric reads what is written (a defect fails here)
+        out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)
     path = out / "trajectories.parquet"
     table.to_parquet(path, index=False)
     counts = table.drop_duplicates(["episode", "vehicle_id"]).label.value_counts().to_dict()
-    print(f"{len(table)} rows, {cfg.episodes} episodes, vehicles per class {counts} -> {path}")
+    scenes = table.episode.nunique()
+    print(f"{len(table)} rows, {scenes} scenes, vehicles per class {counts} -> {path}")
     return path
 
 
@@ -39,8 +51,8 @@ def _hydra_main(dcfg: DictConfig) -> None:
 
 
 def main() -> None:
-    """The Hydra app; a first argument without ``=`` names the source (``sumo``)."""
-    bare_first_argument("source")
+    """The Hydra app; leading arguments without ``=`` name the source and the path."""
+    bare_first_argument("source", "path")
     _hydra_main()
 
 
