@@ -48,11 +48,13 @@ def read_table(source: str | Path | pd.DataFrame) -> pd.DataFrame:
     raise TrajectoryError(f"{path}: unknown format {path.suffix!r}; use .csv or .parquet")
 
 
-def load_trajectories(source: str | Path | pd.DataFrame, fps: float = 15.0) -> pd.DataFrame:
+def load_trajectories(
+    source: str | Path | pd.DataFrame, fps: float = 15.0, extra: tuple[str, ...] = ()
+) -> pd.DataFrame:
     """Read, validate and complete a trajectory table.
 
     Returns a copy with columns ``episode, frame, time, vehicle_id, x, y, vx, vy`` (plus
-    ``label`` when given), sorted by episode, vehicle and frame.
+    ``label`` and the ``extra`` columns when given), sorted by episode, vehicle and frame.
 
     Raises :class:`TrajectoryError` for missing columns, NaN or infinite values, duplicate
     (episode, frame, vehicle) rows, or a time that does not increase with the frame.
@@ -122,8 +124,7 @@ def load_trajectories(source: str | Path | pd.DataFrame, fps: float = 15.0) -> p
     if "vx" not in df.columns or "vy" not in df.columns:
         df["vx"], df["vy"] = _finite_difference_velocity(df)
     keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
-    if "label" in df.columns:
-        keep.append("label")
+    keep += [c for c in ("label", *extra) if c in df.columns]
     return df[keep]
 
 
