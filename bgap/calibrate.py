@@ -325,7 +325,12 @@ def main(dcfg: DictConfig) -> None:
 
     cfg: CalibrateAppConfig = load(dcfg)
     save_run_metadata(report_dir(cfg), dcfg)
-    summary = calibrate(cfg)
+    if cfg.calibrate.target:  # to a labelled table's statistics (bgap.calibrate_data)
+        from bgap.calibrate_data import calibrate_to_data
+
+        summary = calibrate_to_data(cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg))
+    else:
+        summary = calibrate(cfg)
     print(json.dumps(summary, indent=2))
     hint = selection_hint("behavior", preset_file(cfg))
     print(f"preset: {preset_file(cfg)} (use: {hint}); report: {report_dir(cfg)}")

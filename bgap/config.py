@@ -359,6 +359,27 @@ class ClassTargets:
 
 
 @dataclass
+class StatisticWeights:
+    """Weights of the statistics that calibration to data compares (:mod:`bgap.kinematics`;
+    each distance is scaled by the target's spread first, so equal weights weigh equally)."""
+
+    score: float = 1.0
+    speed: float = 1.0
+    headway: float = 1.0
+    acceleration: float = 1.0
+    lane_changes: float = 1.0
+
+    def __post_init__(self) -> None:
+        values = asdict(self)
+        check(
+            min(values.values()) >= 0 and max(values.values()) > 0,
+            "calibrate.weights",
+            values,
+            "weights must be >= 0, at least one > 0",
+        )
+
+
+@dataclass
 class StartParams:
     """Per class, the first trial's parameters; null values take the behaviour preset's."""
 
@@ -409,8 +430,25 @@ class CalibrationConfig:
     pipeline writes the packaged ``behavior/calibrated.yaml``."""
     out: Optional[str] = None
     """Report folder; default ``<root>/calibration``."""
+    target: Optional[str] = None
+    """A labelled trajectory table (any file CMetric reads, with ``label`` and ``lane``):
+    fit both classes at once to its statistics instead of ``targets``
+    (:mod:`bgap.calibrate_data`)."""
+    aggressive_prefix: str = "agg"
+    """Target labels starting with this (case-insensitive) are aggressive, others
+    conservative (``ego`` is left out)."""
+    target_fps: float = 15.0
+    """Frames per second of a target table without a ``time`` column."""
+    min_vehicles: int = 10
+    """Vehicles of each class the target must hold."""
+    scene_from_data: bool = True
+    """Simulate the target's lane count and aggressive share (else the ``density`` preset's
+    lanes and ``scene_mix``)."""
+    weights: StatisticWeights = field(default_factory=StatisticWeights)
 
     def __post_init__(self) -> None:
+        check(self.target_fps > 0, "calibrate.target_fps", self.target_fps, "must be > 0")
+        check(self.min_vehicles >= 2, "calibrate.min_vehicles", self.min_vehicles, ">= 2")
         for c in self.classes:
             check(c in CLASSES, "calibrate.classes", self.classes, f"use {list(CLASSES)}")
         check(

@@ -163,7 +163,8 @@ def compare(
     simulated: dict[str, dict[str, np.ndarray]],
     weights: dict[str, float] | None = None,
 ) -> pd.DataFrame:
-    """Per class and statistic: the observed and simulated means, the Wasserstein-1 distance
+    """Per class and statistic (:data:`STATISTICS`, then any other sample ``observed``
+    holds, such as CMetric scores): the observed and simulated means, the Wasserstein-1 distance
     between the two samples and that distance over the observed sample's standard
     deviation (``scaled``: comparable across statistics), and its ``weight`` (default 1).
     A statistic without values on either side gets NaN distances."""
@@ -172,7 +173,7 @@ def compare(
     weights = weights or {}
     rows = []
     for cls, stats in observed.items():
-        for name in STATISTICS:
+        for name in [*STATISTICS, *(k for k in stats if k not in STATISTICS)]:
             a = stats.get(name, np.empty(0))
             b = simulated.get(cls, {}).get(name, np.empty(0))
             distance = wasserstein_distance(a, b) if len(a) and len(b) else np.nan

@@ -48,6 +48,8 @@ def _tables(folder: Path) -> None:
     ids["track_id"] = ids["id"]
     ids.to_csv(folder / "both_ids.csv", index=False)
     (folder / "notes.txt").write_text("not a table")
+    one_class = good.assign(label="aggressive", lane=0)
+    one_class.to_csv(folder / "one_class.csv", index=False)
 
 
 CASES = [
@@ -95,6 +97,19 @@ CASES = [
     ("calibrate", ["calibrate.trials=0"], r"calibrate\.trials=0 is invalid"),
     ("calibrate", ["calibrate.scene_mix=0"], r"calibrate\.scene_mix=0\.0 is invalid"),
     ("calibrate", ["cmetric.mu=-1"], r"cmetric\.mu=-1\.0 is invalid"),
+    ("calibrate", ["calibrate.target_fps=0"], r"calibrate\.target_fps=0\.0 is invalid"),
+    ("calibrate", ["calibrate.weights.speed=-1"], r"calibrate\.weights=.* must be >= 0"),
+    (
+        "calibrate",
+        ["calibrate.target={tmp}/missing.csv", "root={tmp}/out"],
+        r"missing\.csv: no such file",
+    ),
+    ("calibrate", ["calibrate.target={tmp}/good.csv", "root={tmp}/out"], r"no 'label' column"),
+    (
+        "calibrate",
+        ["calibrate.target={tmp}/one_class.csv", "root={tmp}/out"],
+        r"too few vehicles of class \{'conservative': 0, 'aggressive': 3\}",
+    ),
     (
         "calibrate",
         ["calibrate.storage=postgresql://bgap@127.0.0.1:9/none", "root={tmp}/out"],

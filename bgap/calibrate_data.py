@@ -1,0 +1,420 @@
+"""Calibration to observed traffic: ``python -m bgap.calibrate calibrate.target=PATH``.
+
+The paper's mode (:mod:`bgap.calibrate`) fits each class's mean CMetric score to a number.
+This mode fits bgap's two driver classes to a labelled trajectory table instead: any table
+CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
+``calibrate.aggressive_prefix``: :func:`bgap.kinematics.driver_class`).
+
+- **What is compared**: per class, the distributions of the CMetric score, the speed, the
+  time headway to the leader, the longitudinal acceleration and the lane changes per
+  vehicle-minute (:mod:`bgap.kinematics`). Each statistic's Wasserstein-1 distance between
+  the simulated and the observed sample, over the observed sample's standard deviation,
+  weighted by ``calibrate.weights``; the objective is their weighted mean, plus the paper
+  mode's penalties for degenerate traffic (too many crashes, stalled traffic).
+- **Both classes at once**: one Optuna study over both classes' searched parameters
+  (``aggressive.v0``, ``conservative.v0``, ...), because CMetric scores are relative to
+  the scene: one class's fit depends on how the other drives.
+- **Scene noise**: every trial simulates the same seeded scenes (common random numbers:
+  trials differ only in their parameters).
+- **The scene from the data**: the lane count and the aggressive share of the target
+  (:func:`bgap.kinematics.scene`), unless ``calibrate.scene_from_data=false``. The density
+  stays the ``calibrate.density`` preset's and the limit highway-env's; the report shows the
+  target's estimates beside them.
+- **Converged** when every statistic's simulated mean lies within the noise band of the
+  difference: the target's band (two standard errors of that statistic's per-scene means
+  across its scenes) and the simulated scenes' band, combined in quadrature (a single
+  scene: the sample mean's, which treats its frames as independent: optimistic).
+
+Outputs in the report folder: ``statistics.csv``/``.md`` (per class and statistic: target,
+Table I's traffic and the calibrated traffic, means and distances), ``statistics.png``
+(the distributions), ``convergence.png``, ``scores.json``; the preset as in the paper mode.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import warnings
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import pandas as pd
+
+from bgap.behaviors import BehaviorConfig, DriverParams, paper_behavior
+from bgap.cmetric.io import TrajectoryError, read_table
+from bgap.config import CalibrateAppConfig
+from bgap.kinematics import STATISTICS, Scene, class_samples, compare, driver_class, scene
+from bgap.presets import write_preset
+from bgap.rollout import rollout
+from bgap.scenario import env_config, env_preset
+from bgap.studies import open_storage
+from bgap.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
+
+ALL_STATISTICS = ("score", *STATISTICS)
+"""What the objective compares, per class: the CMetric score and the kinematic statistics."""
+
+
+@dataclass
+class Observed:
+    """The target's statistics per class, their noise bands and the scene it implies."""
+
+    samples: dict[str, dict[str, np.ndarray]]
+    band: dict[str, dict[str, float]]
+    """Two standard errors of each statistic's mean (see the module docstring)."""
+    scene: Scene
+    vehicles: dict[str, int]
+
+
+def _statistics(table: pd.DataFrame, cfg: CalibrateAppConfig, fps: float) -> dict:
+    """Per class, the kinematic samples of ``table`` and its vehicles' CMetric scores."""
+    from bgap.cmetric.score import score_trajectories
+
+    c = cfg.calibrate
+    samples = class_samples(table, fps=fps, aggressive_prefix=c.aggressive_prefix)
+    vehicles = score_trajectories(table, cfg.cmetric, fps=fps).vehicles
+    vehicles["cls"] = driver_class(vehicles.label, c.aggressive_prefix).to_numpy()
+    for cls in samples:
+        scores = vehicles.loc[vehicles.cls == cls, "aggressiveness"].dropna()
+        samples[cls]["score"] = scores.to_numpy()
+    return samples
+
+
+def _bands(table: pd.DataFrame, samples: dict, cfg: CalibrateAppConfig, fps: float) -> dict:
+    """Per class and statistic, two standard errors of its mean: across the table's scenes
+    (their means) where it has two or more, else of the sample mean (optimistic: it treats
+    a scene's frames as independent)."""
+    episodes = table["episode"] if "episode" in table else table.get("scene")
+    per_scene: dict[str, dict[str, list[float]]] = {cls: {} for cls in samples}
+    if episodes is not None and episodes.nunique() >= 2:
+        for _, part in table.groupby(episodes):
+            try:
+                stats = _statistics(part, cfg, fps)
+            except TrajectoryError:  # a scene CMetric cannot score (one vehicle, one frame)
+                continue
+            for cls, by_name in stats.items():
+                for name, values in by_name.items():
+                    if len(values) and cls in per_scene:
+                        per_scene[cls].setdefault(name, []).append(float(np.mean(values)))
+    band: dict[str, dict[str, float]] = {}
+    for cls, by_name in samples.items():
+        band[cls] = {}
+        for name, values in by_name.items():
+            means = per_scene[cls].get(name, [])
+            if len(means) >= 2:
+                band[cls][name] = 2 * float(np.std(means, ddof=1) / np.sqrt(len(means)))
+            elif len(values) >= 2:
+                band[cls][name] = 2 * float(np.std(values, ddof=1) / np.sqrt(len(values)))
+            else:
+                band[cls][name] = float("nan")
+    return band
+
+
+def observe(cfg: CalibrateAppConfig) -> Observed:
+    """Read and check the target table (every defect is an error before any simulation),
+    then measure it."""
+    c = cfg.calibrate
+    table = read_table(c.target)
+    if "label" not in table:
+        raise TrajectoryError(
+            f"{c.target} has no 'label' column: calibration to data needs each vehicle's "
+            "class (labels starting with calibrate.aggressive_prefix are aggressive)"
+        )
+    ids = "vehicle_id" if "vehicle_id" in table else ("id" if "id" in table else None)
+    if ids is not None:
+        scene_key = [k for k in ("episode", "scene") if k in table][:1]
+        per_vehicle = table.drop_duplicates([*scene_key, ids])
+        classes = driver_class(per_vehicle.label, c.aggressive_prefix)
+        counts = {cls: int((classes == cls).sum()) for cls in CLASSES}
+        few = {cls: n for cls, n in counts.items() if n < c.min_vehicles}
+        if few:
+            raise TrajectoryError(
+                f"{c.target}: too few vehicles of class {few} (calibrate.min_vehicles="
+                f"{c.min_vehicles}); both classes must be present, labelled "
+                f"'{c.aggressive_prefix}...' for aggressive and anything else for conservative"
+            )
+    samples = _statistics(table, cfg, c.target_fps)
+    band = _bands(table, samples, cfg, c.target_fps)
+    found = scene(table, fps=c.target_fps, aggressive_prefix=c.aggressive_prefix)
+    return Observed(samples, band, found, counts if ids is not None else {})
+
+
+def simulated_scene(cfg: CalibrateAppConfig, observed: Observed) -> tuple[Any, float]:
+    """The env config and the mix every trial simulates."""
+    c = cfg.calibrate
+    env = replace(env_preset(c.density), duration=c.duration)
+    mix = c.scene_mix
+    if c.scene_from_data:
+        env = replace(env, lanes_count=max(observed.scene.lanes, 1))
+        mix = float(np.clip(observed.scene.aggressive_share, 0.1, 0.9))  # both classes
+    return env, mix
+
+
+def simulate(
+    cfg: CalibrateAppConfig, behavior: BehaviorConfig, observed: Observed, bands: bool = False
+) -> dict:
+    """Statistics of the calibration scenes under ``behavior``, and the degeneracy figures
+    (with ``bands``, also the simulated statistics' noise bands, as the target's)."""
+    c = cfg.calibrate
+    env, mix = simulated_scene(cfg, observed)
+    run = replace(cfg, env=env, behavior=behavior, mix=mix)
+    seeds = range(c.scene_seed, c.scene_seed + c.episodes)
+    table = rollout(env_config(run), "idle", seeds, cfg.backend, record=True).trajectories
+    final = table[table.frame == table.groupby("episode").frame.transform("max")]
+    others = table[~table.is_ego]
+    fps = float(env.simulation_frequency)
+    samples = _statistics(table, cfg, fps)  # the ego stays in the scene; no statistic counts it
+    return {
+        "samples": samples,
+        "band": _bands(table, samples, cfg, fps) if bands else None,
+        "crashed": float(final[~final.is_ego].crashed.mean()),
+        "speed": {cls: float(others.loc[others.label == cls, "speed"].mean()) for cls in CLASSES},
+    }
+
+
+def objective_value(cfg: CalibrateAppConfig, observed: Observed, sim: dict) -> float:
+    """The weighted mean scaled distance, plus the paper mode's degeneracy penalties."""
+    from bgap.kinematics import total_distance
+
+    c = cfg.calibrate
+    value = total_distance(compare(observed.samples, sim["samples"], asdict(c.weights)))
+    value = 10.0 if not np.isfinite(value) else value
+    if sim["crashed"] > c.max_crashed:
+        value += 1.0 + (sim["crashed"] - c.max_crashed)
+    for cls in CLASSES:
+        if not sim["speed"][cls] >= c.min_speed:
+            value += 1.0 + (c.min_speed - np.nan_to_num(sim["speed"][cls])) / c.min_speed
+    return float(value)
+
+
+def behavior_from(base: BehaviorConfig, params: dict[str, float]) -> BehaviorConfig:
+    """``base`` with the ``<class>.<parameter>`` values of ``params``."""
+    updates = {}
+    for cls in CLASSES:
+        mine = {k.split(".", 1)[1]: v for k, v in params.items() if k.startswith(f"{cls}.")}
+        if mine:
+            updates[cls] = DriverParams(**{**asdict(getattr(base, cls)), **mine})
+    return replace(base, name="calibrated", **updates)
+
+
+def study_name(cfg: CalibrateAppConfig) -> str:
+    """One study per target file (its bytes) and everything that changes a trial's value."""
+    c = cfg.calibrate
+    keys = {
+        "target": hashlib.sha1(Path(c.target).read_bytes()).hexdigest(),
+        "prefix": c.aggressive_prefix,
+        "fps": c.target_fps,
+        "weights": asdict(c.weights),
+        "bounds": c.bounds.searched(),
+        "density": c.density,
+        "mix": c.scene_mix,
+        "from_data": c.scene_from_data,
+        "episodes": c.episodes,
+        "duration": c.duration,
+        "seed": c.scene_seed,
+        "limits": [c.max_crashed, c.min_speed],
+        "cmetric": asdict(cfg.cmetric),
+        "start": asdict(cfg.behavior),
+        "backend": cfg.backend,
+    }
+    digest = hashlib.sha1(json.dumps(keys, sort_keys=True, default=str).encode()).hexdigest()
+    return f"{c.study}-data-{digest[:8]}"
+
+
+def fit(
+    cfg: CalibrateAppConfig, observed: Observed, storage, progress: bool = True
+) -> optuna.Study:
+    """Run (or continue) the study until it holds ``calibrate.trials`` completed trials."""
+    from optuna.study import MaxTrialsCallback
+    from optuna.trial import TrialState
+
+    c = cfg.calibrate
+    study = optuna.create_study(
+        study_name=study_name(cfg),
+        storage=storage,
+        direction="minimize",
+        sampler=optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10),
+        load_if_exists=True,
+    )
+    bounds = c.bounds.searched()
+    if not study.trials:  # the starting behaviour preset first, inside the bounds
+        start = {}
+        for cls in c.classes:
+            preset = asdict(getattr(cfg.behavior, cls))
+            for key, (lo, hi) in bounds.items():
+                value = preset.get(key)
+                value = (lo + hi) / 2 if value is None else value
+                start[f"{cls}.{key}"] = float(min(max(value, lo), hi))
+        study.enqueue_trial(start)
+
+    def objective(trial: optuna.Trial) -> float:
+        params = {
+            f"{cls}.{k}": trial.suggest_float(f"{cls}.{k}", lo, hi)
+            for cls in c.classes
+            for k, (lo, hi) in bounds.items()
+        }
+        sim = simulate(cfg, behavior_from(cfg.behavior, params), observed)
+        trial.set_user_attr("crashed", sim["crashed"])
+        for cls in CLASSES:
+            trial.set_user_attr(f"speed_{cls}", sim["speed"][cls])
+        return objective_value(cfg, observed, sim)
+
+    done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
+    if c.trials - done > 0:
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        study.optimize(
+            objective,
+            n_trials=c.trials - done,
+            callbacks=[MaxTrialsCallback(c.trials, states=(TrialState.COMPLETE,))],
+            show_progress_bar=progress,
+        )
+    return study
+
+
+def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
+    """Per class and statistic: the target's mean and noise band, and per simulated arm
+    (``table1``, ``calibrated``) its mean, scaled distance, the band of the difference of
+    the two means (the target's and the arm's bands combined) and whether it lies within."""
+    rows = []
+    for cls, by_name in observed.samples.items():
+        for name in ALL_STATISTICS:
+            target = by_name.get(name, np.empty(0))
+            row = {
+                "class": cls,
+                "statistic": name,
+                "target": float(np.mean(target)) if len(target) else np.nan,
+                "band": observed.band[cls].get(name, np.nan),
+            }
+            for arm, sim in arms.items():
+                table = compare({cls: {name: target}}, sim["samples"])
+                one = table[table.statistic == name]
+                mean = float(one.simulated_mean.iloc[0]) if len(one) else np.nan
+                own = (sim.get("band") or {}).get(cls, {}).get(name, 0.0)
+                band = float(np.hypot(row["band"], own))  # both means are noisy
+                row[f"{arm}_mean"] = mean
+                row[f"{arm}_distance"] = float(one.scaled.iloc[0]) if len(one) else np.nan
+                row[f"{arm}_band"] = band
+                row[f"{arm}_in_band"] = bool(abs(mean - row["target"]) <= band)
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def calibrate_to_data(
+    cfg: CalibrateAppConfig, storage: str, preset: Path, report: Path, progress: bool = True
+) -> dict[str, Any]:
+    """Observe the target, fit both classes, write the preset to ``preset`` and the report
+    into ``report`` (the Optuna study in ``storage``, a URL; :mod:`bgap.calibrate` names
+    the three as for the paper's mode)."""
+    storage = open_storage(storage, key="calibrate.storage")  # a bad URL: at once
+    observed = observe(cfg)
+    study = fit(cfg, observed, storage, progress)
+    calibrated = behavior_from(cfg.behavior, dict(study.best_params))
+    arms = {
+        "table1": simulate(cfg, paper_behavior(), observed, bands=True),
+        "calibrated": simulate(cfg, calibrated, observed, bands=True),
+    }
+    table = comparison(observed, arms)
+    missed = table[~table.calibrated_in_band & table.band.notna()]
+    calibrated = replace(calibrated, name=Path(preset).stem, converged=missed.empty)
+    if not missed.empty:
+        listed = ", ".join(f"{r['class']} {r.statistic}" for _, r in missed.iterrows())
+        warnings.warn(
+            f"calibration to {cfg.calibrate.target} left {len(missed)} statistic(s) outside "
+            f"the target's noise band ({listed}): the preset is marked converged: false",
+            stacklevel=2,
+        )
+    write_preset(
+        calibrated,
+        "behavior",
+        preset,
+        f"Written by python -m bgap.calibrate calibrate.target={cfg.calibrate.target}; "
+        f"report: {report}",
+    )
+    return write_report(cfg, Path(report), observed, study, arms, table, calibrated)
+
+
+def write_report(
+    cfg: CalibrateAppConfig,
+    out: Path,
+    observed: Observed,
+    study: optuna.Study,
+    arms: dict[str, dict],
+    table: pd.DataFrame,
+    behavior: BehaviorConfig,
+) -> dict[str, Any]:
+    """``statistics.csv``/``.md``, ``statistics.png``, ``convergence.png``, ``scores.json``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out / "statistics.csv", index=False)
+    (out / "statistics.md").write_text(table.to_markdown(index=False, floatfmt=".3f") + "\n")
+    env, mix = simulated_scene(cfg, observed)
+    summary = {
+        "target": cfg.calibrate.target,
+        "converged": behavior.converged,
+        "objective": study.best_value,
+        "trials": len(study.trials),
+        "target_vehicles": observed.vehicles,
+        "target_scene": asdict(observed.scene),
+        "simulated_scene": {
+            "lanes": env.lanes_count,
+            "vehicles_count": env.vehicles_count,
+            "vehicles_density": env.vehicles_density,
+            "mix": mix,
+        },
+        "in_band": {arm: int(table[f"{arm}_in_band"].sum()) for arm in arms},
+        "statistics": len(table),
+        "crashed": {arm: sim["crashed"] for arm, sim in arms.items()},
+        "parameters": {
+            cls: {k: v for k, v in asdict(getattr(behavior, cls)).items() if v is not None}
+            for cls in CLASSES
+        },
+    }
+    (out / "scores.json").write_text(json.dumps(summary, indent=2, default=float))
+    classes = [cls for cls in (CONSERVATIVE, AGGRESSIVE) if cls in observed.samples]
+    fig, axes = plt.subplots(
+        len(classes), len(ALL_STATISTICS), figsize=(3.2 * len(ALL_STATISTICS), 2.6 * len(classes)),
+        squeeze=False,
+    )  # fmt: skip
+    for i, cls in enumerate(classes):
+        for j, name in enumerate(ALL_STATISTICS):
+            ax = axes[i][j]
+            target = observed.samples[cls].get(name, np.empty(0))
+            series = [("target", target, "k")] + [
+                (arm, sim["samples"].get(cls, {}).get(name, np.empty(0)), color)
+                for (arm, sim), color in zip(arms.items(), ("tab:gray", "tab:green"), strict=True)
+            ]
+            values = np.concatenate([s for _, s, _ in series if len(s)] or [np.zeros(1)])
+            bins = np.linspace(*np.quantile(values, [0.01, 0.99]), 31)
+            for arm, sample, color in series:  # dashed on top: equal arms both show
+                if len(sample):
+                    ax.hist(sample, bins=bins, density=True, histtype="step", color=color,
+                            ls="--" if arm == "calibrated" else "-", label=arm,
+                            lw=2.0 if arm == "table1" else 1.2)  # fmt: skip
+            ax.set_title(f"{cls}: {name}", fontsize=9)
+            if i == 0 and j == 0:
+                ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "statistics.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(5, 3.4))
+    done = [t for t in study.trials if t.value is not None]
+    ax.plot([t.number for t in done], [t.value for t in done], ".", alpha=0.5, label="trial")
+    ax.plot(
+        [t.number for t in done],
+        np.minimum.accumulate([t.value for t in done]),
+        "k-",
+        label="best so far",
+    )
+    ax.set_xlabel("trial")
+    ax.set_ylabel("weighted scaled distance")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "convergence.png", dpi=120)
+    plt.close(fig)
+    return summary

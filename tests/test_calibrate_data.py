@@ -1,0 +1,97 @@
+"""Calibration to a labelled trajectory table (bgap.calibrate_data): defects are refused
+before any simulation; a short run writes its report, preset and resumable study."""
+
+from __future__ import annotations
+
+import json
+
+import pandas as pd
+import pytest
+
+from bgap.cmetric.io import TrajectoryError
+from bgap.config import compose, validate
+
+
+@pytest.fixture(scope="module")
+def target(tmp_path_factory):
+    """bgap's own dense traffic under Table I (3 scenes of 12 s, seeds other than the
+    calibration's), relabelled as a user's data would be ("AGG"/"normal")."""
+    from bgap.rollout import rollout
+    from bgap.scenario import env_config
+    from tests.conftest import make_cfg
+
+    cfg = make_cfg("env=dense", "mix=0.5", "env.duration=12")
+    table = rollout(env_config(cfg), "idle", [50, 51, 52], "vector", record=True).trajectories
+    table["label"] = table.label.map({"aggressive": "AGG", "conservative": "normal"}).fillna(
+        table.label
+    )
+    path = tmp_path_factory.mktemp("target") / "target.parquet"
+    table.to_parquet(path)
+    return path
+
+
+def _cfg(tmp_path, target, *overrides):
+    return validate(
+        compose(
+            "calibrate",
+            [f"calibrate.target={target}", "calibrate.episodes=1", "calibrate.duration=12",
+             f"root={tmp_path}", *overrides],
+        )
+    )  # fmt: skip
+
+
+def test_defective_targets_fail_before_any_simulation(tmp_path, target, monkeypatch):
+    import bgap.calibrate_data as cd
+
+    def no_simulation(*args, **kwargs):
+        raise AssertionError("simulated before the target was checked")
+
+    monkeypatch.setattr(cd, "rollout", no_simulation)
+    table = pd.read_parquet(target)
+    for name, frame, message in (
+        ("unlabelled", table.drop(columns="label"), "no 'label' column"),
+        ("one_class", table.assign(label="AGG"), r"too few vehicles of class \{'conservative': 0"),
+        ("few", table[table.vehicle_id < 8], "too few vehicles"),
+    ):
+        path = tmp_path / f"{name}.parquet"
+        frame.to_parquet(path)
+        with pytest.raises(TrajectoryError, match=message):
+            cd.observe(_cfg(tmp_path, path))
+    observed = cd.observe(_cfg(tmp_path, target))  # the labels map through the prefix
+    assert observed.vehicles == {"aggressive": 60, "conservative": 60}
+    assert observed.scene.lanes == 4 and observed.scene.aggressive_share == pytest.approx(0.5)
+    assert set(observed.samples["aggressive"]) == {*cd.ALL_STATISTICS}
+    assert all(b > 0 for b in observed.band["conservative"].values())
+
+
+def test_a_short_calibration_writes_its_report_and_resumes(tmp_path, target):
+    import optuna
+
+    from bgap.behaviors import BehaviorConfig
+    from bgap.calibrate import preset_file, report_dir, storage_url
+    from bgap.calibrate_data import calibrate_to_data, study_name
+    from bgap.presets import load_preset
+
+    cfg = _cfg(tmp_path, target, "calibrate.trials=2", "calibrate.aggressive_prefix=agg")
+    with pytest.warns(UserWarning, match="outside the target's noise band"):
+        summary = calibrate_to_data(
+            cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg), progress=False
+        )
+    out = tmp_path / "calibration"
+    stats = pd.read_csv(out / "statistics.csv")
+    assert len(stats) == 10 and set(stats.statistic) == {
+        "score", "speed", "headway", "acceleration", "lane_changes"
+    }  # fmt: skip
+    # trial 0 is the starting preset (Table I), so the calibrated traffic is at least as
+    # close in total; the target is Table I's own traffic: most statistics within the band
+    assert stats.table1_in_band.sum() >= 6
+    assert (out / "statistics.png").stat().st_size > 10_000
+    assert json.loads((out / "scores.json").read_text())["trials"] == 2 == summary["trials"]
+    preset = load_preset(BehaviorConfig, tmp_path / "presets/behavior/user_calibrated.yaml")
+    assert preset.converged is False
+    more = _cfg(tmp_path, target, "calibrate.trials=3", "calibrate.aggressive_prefix=agg")
+    assert study_name(more) == study_name(cfg)  # the trial budget is not in the name
+    with pytest.warns(UserWarning):
+        calibrate_to_data(more, storage_url(more), preset_file(more), report_dir(more), False)
+    study = optuna.load_study(study_name=study_name(cfg), storage=storage_url(cfg))
+    assert len(study.trials) == 3
