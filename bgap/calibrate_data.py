@@ -27,7 +27,8 @@ CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
 
 Outputs in the report folder: ``statistics.csv``/``.md`` (per class and statistic: target,
 Table I's traffic and the calibrated traffic, means and distances), ``statistics.png``
-(the distributions), ``convergence.png``, ``scores.json``; the preset as in the paper mode.
+(the distributions), ``sensitivity.csv``/``.md``/``.png`` (:func:`sensitivity`: what the
+data pins down), ``convergence.png``, ``scores.json``; the preset as in the paper mode.
 """
 
 from __future__ import annotations
@@ -301,6 +302,67 @@ def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def sensitivity(cfg: CalibrateAppConfig, observed: Observed, study: optuna.Study) -> pd.DataFrame:
+    """What the data pins down: per searched parameter, Optuna's importance (fANOVA over the
+    study's trials) and a one-at-a-time sweep around the best trial
+    (``calibrate.sensitivity_points`` values across its bounds, the others at their best).
+
+    The objective's noise is measured by rerunning the best parameters on
+    ``calibrate.noise_repeats`` other sets of scenes; a parameter is **identified** when its
+    sweep raises the objective by more than two noise standard deviations somewhere, and its
+    **plausible range** is the swept values whose objective lies within that margin of the
+    best (where it is not identified, about its whole interval)."""
+    c = cfg.calibrate
+    best = dict(study.best_params)
+    base = objective_value(
+        cfg, observed, simulate(cfg, behavior_from(cfg.behavior, best), observed)
+    )
+    repeats = []
+    for k in range(1, c.noise_repeats + 1):
+        other = replace(cfg, calibrate=replace(c, scene_seed=c.scene_seed + 1000 * k))
+        sim = simulate(other, behavior_from(cfg.behavior, best), observed)
+        repeats.append(objective_value(cfg, observed, sim))
+    noise = float(np.std([base, *repeats], ddof=1)) if repeats else float("nan")
+    margin = 2 * noise if np.isfinite(noise) else 0.0
+    try:
+        importance = optuna.importance.get_param_importances(study)
+    except (RuntimeError, ValueError):  # too few or identical trials
+        importance = {}
+    bounds = c.bounds.searched()
+    rows, curves = [], []
+    for name, value in best.items():
+        lo, hi = bounds[name.split(".", 1)[1]]
+        grid = np.union1d(np.linspace(lo, hi, c.sensitivity_points), [value])
+        values = []
+        for x in grid:
+            if x == value:  # the best trial itself, on the same scenes
+                values.append(base)
+            else:
+                params = {**best, name: float(x)}
+                sim = simulate(cfg, behavior_from(cfg.behavior, params), observed)
+                values.append(objective_value(cfg, observed, sim))
+            curves.append({"parameter": name, "value": float(x), "objective": values[-1]})
+        values = np.asarray(values)
+        near = grid[values <= base + margin]
+        rows.append(
+            {
+                "parameter": name,
+                "best": value,
+                "importance": importance.get(name, np.nan),
+                "objective_best": base,
+                "objective_max": float(values.max()),
+                "identified": bool(values.max() > base + margin) if margin > 0 else None,
+                "plausible_low": float(near.min()) if len(near) else value,
+                "plausible_high": float(near.max()) if len(near) else value,
+                "low": lo,
+                "high": hi,
+            }
+        )
+    table = pd.DataFrame(rows).sort_values("importance", ascending=False, na_position="last")
+    table.attrs.update(noise=noise, curves=pd.DataFrame(curves))
+    return table
+
+
 def calibrate_to_data(
     cfg: CalibrateAppConfig, storage: str, preset: Path, report: Path, progress: bool = True
 ) -> dict[str, Any]:
@@ -332,7 +394,8 @@ def calibrate_to_data(
         f"Written by python -m bgap.calibrate calibrate.target={cfg.calibrate.target}; "
         f"report: {report}",
     )
-    return write_report(cfg, Path(report), observed, study, arms, table, calibrated)
+    sensitive = sensitivity(cfg, observed, study) if cfg.calibrate.sensitivity_points else None
+    return write_report(cfg, Path(report), observed, study, arms, table, calibrated, sensitive)
 
 
 def write_report(
@@ -343,8 +406,10 @@ def write_report(
     arms: dict[str, dict],
     table: pd.DataFrame,
     behavior: BehaviorConfig,
+    sensitive: pd.DataFrame | None = None,
 ) -> dict[str, Any]:
-    """``statistics.csv``/``.md``, ``statistics.png``, ``convergence.png``, ``scores.json``."""
+    """``statistics.csv``/``.md``, ``statistics.png``, ``convergence.png``, ``scores.json``,
+    and with ``sensitive`` ``sensitivity.csv``/``.md`` and ``sensitivity.png``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -375,6 +440,20 @@ def write_report(
             for cls in CLASSES
         },
     }
+    if sensitive is not None:
+        sensitive.to_csv(out / "sensitivity.csv", index=False)
+        noise = sensitive.attrs["noise"]
+        (out / "sensitivity.md").write_text(
+            f"Objective noise (standard deviation over scene sets): {noise:.4f}\n\n"
+            + sensitive.to_markdown(index=False, floatfmt=".3f")
+            + "\n"
+        )
+        _plot_sensitivity(sensitive, out / "sensitivity.png")
+        summary["identified"] = sorted(sensitive.parameter[sensitive.identified == True])  # noqa: E712
+        summary["not_identified"] = sorted(
+            sensitive.parameter[sensitive.identified == False]  # noqa: E712
+        )
+        summary["objective_noise"] = noise
     (out / "scores.json").write_text(json.dumps(summary, indent=2, default=float))
     classes = [cls for cls in (CONSERVATIVE, AGGRESSIVE) if cls in observed.samples]
     fig, axes = plt.subplots(
@@ -418,3 +497,30 @@ def write_report(
     fig.savefig(out / "convergence.png", dpi=120)
     plt.close(fig)
     return summary
+
+
+def _plot_sensitivity(table: pd.DataFrame, path: Path) -> None:
+    """The objective along each parameter's sweep (best value marked, the noise margin
+    shaded), one panel per parameter, the most important first."""
+    import matplotlib.pyplot as plt
+
+    curves = table.attrs["curves"]
+    names = list(table.parameter)
+    cols = 4
+    rows = int(np.ceil(len(names) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
+    margin = 2 * table.attrs["noise"] if np.isfinite(table.attrs["noise"]) else 0.0
+    for ax, name in zip(axes.flat, names, strict=False):
+        row = table[table.parameter == name].iloc[0]
+        curve = curves[curves.parameter == name]
+        ax.plot(curve.value, curve.objective, "o-", ms=3)
+        ax.axhspan(row.objective_best, row.objective_best + margin, color="0.9")
+        ax.axvline(row.best, color="tab:green", ls="--")
+        flag = "" if row.identified else " (not identified)"
+        ax.set_title(f"{name}{flag}", fontsize=8)
+    for ax in axes.flat[len(names) :]:
+        ax.axis("off")
+    fig.supylabel("objective")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -445,10 +445,23 @@ class CalibrationConfig:
     """Simulate the target's lane count and aggressive share (else the ``density`` preset's
     lanes and ``scene_mix``)."""
     weights: StatisticWeights = field(default_factory=StatisticWeights)
+    sensitivity_points: int = 5
+    """Calibration to data: values per parameter in the one-at-a-time sensitivity sweep
+    around the best trial (0: no sensitivity report)."""
+    noise_repeats: int = 3
+    """... and other scene sets the best parameters rerun on to measure the objective's
+    noise."""
 
     def __post_init__(self) -> None:
         check(self.target_fps > 0, "calibrate.target_fps", self.target_fps, "must be > 0")
         check(self.min_vehicles >= 2, "calibrate.min_vehicles", self.min_vehicles, ">= 2")
+        check(
+            self.sensitivity_points == 0 or self.sensitivity_points >= 2,
+            "calibrate.sensitivity_points",
+            self.sensitivity_points,
+            "0 (no report) or >= 2",
+        )
+        check(self.noise_repeats >= 1, "calibrate.noise_repeats", self.noise_repeats, ">= 1")
         for c in self.classes:
             check(c in CLASSES, "calibrate.classes", self.classes, f"use {list(CLASSES)}")
         check(

@@ -72,7 +72,13 @@ def test_a_short_calibration_writes_its_report_and_resumes(tmp_path, target):
     from bgap.calibrate_data import calibrate_to_data, study_name
     from bgap.presets import load_preset
 
-    cfg = _cfg(tmp_path, target, "calibrate.trials=2", "calibrate.aggressive_prefix=agg")
+    # v0 and T only (8 searched parameters fewer), and a small sensitivity report
+    small = [
+        *(f"calibrate.bounds.{k}=null" for k in
+          ("min_distance", "acc", "dec", "politeness", "min_acc_gain", "b_safe")),
+        "calibrate.sensitivity_points=3", "calibrate.noise_repeats=1",
+    ]  # fmt: skip
+    cfg = _cfg(tmp_path, target, "calibrate.trials=2", "calibrate.aggressive_prefix=agg", *small)
     with pytest.warns(UserWarning, match="outside the target's noise band"):
         summary = calibrate_to_data(
             cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg), progress=False
@@ -89,7 +95,19 @@ def test_a_short_calibration_writes_its_report_and_resumes(tmp_path, target):
     assert json.loads((out / "scores.json").read_text())["trials"] == 2 == summary["trials"]
     preset = load_preset(BehaviorConfig, tmp_path / "presets/behavior/user_calibrated.yaml")
     assert preset.converged is False
-    more = _cfg(tmp_path, target, "calibrate.trials=3", "calibrate.aggressive_prefix=agg")
+    # what the data pins down: the target is Table I's traffic and trial 0 is Table I, so
+    # moving the aggressive class's v0 across 20-45 m/s must worsen the fit beyond the noise
+    sens = pd.read_csv(out / "sensitivity.csv").set_index("parameter")
+    assert set(sens.index) == {f"{c}.{k}" for c in ("aggressive", "conservative")
+                               for k in ("time_gap", "v0")}  # fmt: skip
+    assert (sens.plausible_low <= sens.best).all() and (sens.best <= sens.plausible_high).all()
+    assert sens.loc["aggressive.v0", "identified"]
+    assert sens.loc["aggressive.v0", "objective_max"] > sens.loc["aggressive.v0", "objective_best"]
+    assert (out / "sensitivity.png").stat().st_size > 10_000
+    more = _cfg(
+        tmp_path, target, "calibrate.trials=3", "calibrate.aggressive_prefix=agg", *small,
+        "calibrate.sensitivity_points=0",  # (not part of the study's name)
+    )  # fmt: skip
     assert study_name(more) == study_name(cfg)  # the trial budget is not in the name
     with pytest.warns(UserWarning):
         calibrate_to_data(more, storage_url(more), preset_file(more), report_dir(more), False)
