@@ -16,10 +16,12 @@ CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
   the scene: one class's fit depends on how the other drives.
 - **Scene noise**: every trial simulates the same seeded scenes (common random numbers:
   trials differ only in their parameters).
-- **The scene from the data**: the lane count and the aggressive share of the target
-  (:func:`bgap.kinematics.scene`), unless ``calibrate.scene_from_data=false``. The density
-  stays the ``calibrate.density`` preset's and the limit highway-env's; the report shows the
-  target's estimates beside them.
+- **The scene from the data**: the lane count, the vehicles per km and lane
+  (:func:`matched_density`) and the aggressive share of the target
+  (:func:`bgap.kinematics.scene`), unless ``calibrate.scene_from_data=false``; the vehicle
+  count stays the ``calibrate.density`` preset's and the limit highway-env's 30 m/s (the
+  report shows the target's 85th-percentile speed beside it). ``calibrate.warmup`` seconds
+  are simulated before the measured ``calibrate.duration`` (data recorded at a steady state).
 - **Converged** when every statistic's simulated mean lies within the noise band of the
   difference: the target's band (two standard errors of that statistic's per-scene means
   across its scenes) and the simulated scenes' band, combined in quadrature (a single
@@ -51,7 +53,7 @@ from bgap.kinematics import STATISTICS, Scene, class_samples, compare, driver_cl
 from bgap.presets import write_preset
 from bgap.rollout import rollout
 from bgap.scenario import env_config, env_preset
-from bgap.studies import open_storage
+from bgap.studies import open_storage, plot_convergence
 from bgap.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 
 ALL_STATISTICS = ("score", *STATISTICS)
@@ -67,6 +69,9 @@ class Observed:
     """Two standard errors of each statistic's mean (see the module docstring)."""
     scene: Scene
     vehicles: dict[str, int]
+    vehicles_density: float | None = None
+    """bgap's ``env.vehicles_density`` whose scenes hold the target's vehicles per km and
+    lane (:func:`matched_density`); None: the ``calibrate.density`` preset's."""
 
 
 def _statistics(table: pd.DataFrame, cfg: CalibrateAppConfig, fps: float) -> dict:
@@ -143,14 +148,32 @@ def observe(cfg: CalibrateAppConfig) -> Observed:
 
 
 def simulated_scene(cfg: CalibrateAppConfig, observed: Observed) -> tuple[Any, float]:
-    """The env config and the mix every trial simulates."""
+    """The env config and the mix every trial simulates (``calibrate.warmup`` seconds
+    longer than ``calibrate.duration``: the warm-up is simulated, not measured)."""
     c = cfg.calibrate
-    env = replace(env_preset(c.density), duration=c.duration)
+    env = replace(env_preset(c.density), duration=c.duration + c.warmup)
     mix = c.scene_mix
     if c.scene_from_data:
         env = replace(env, lanes_count=max(observed.scene.lanes, 1))
+        if observed.vehicles_density is not None:
+            env = replace(env, vehicles_density=observed.vehicles_density)
         mix = float(np.clip(observed.scene.aggressive_share, 0.1, 0.9))  # both classes
     return env, mix
+
+
+def matched_density(cfg: CalibrateAppConfig, observed: Observed) -> float:
+    """The ``vehicles_density`` at which bgap's scenes start with the target's vehicles per km
+    and lane. highway-env spawns each vehicle a random gap ahead of the last, proportional
+    to 1 / vehicles_density (``Vehicle.create_random``), so the density scales linearly with
+    it: measured on the first frames of the calibration scenes at density 1, then scaled
+    (clipped to [0.1, 10])."""
+    c = cfg.calibrate
+    env, mix = simulated_scene(cfg, replace(observed, vehicles_density=None))
+    probe = replace(cfg, env=replace(env, vehicles_density=1.0, duration=1.0), mix=mix)
+    seeds = range(c.scene_seed, c.scene_seed + c.episodes)
+    table = rollout(env_config(probe), "idle", seeds, cfg.backend, record=True).trajectories
+    at_one = scene(table[table.frame == 0]).vehicles_per_km_lane
+    return float(np.clip(observed.scene.vehicles_per_km_lane / at_one, 0.1, 10.0))
 
 
 def simulate(
@@ -163,6 +186,7 @@ def simulate(
     run = replace(cfg, env=env, behavior=behavior, mix=mix)
     seeds = range(c.scene_seed, c.scene_seed + c.episodes)
     table = rollout(env_config(run), "idle", seeds, cfg.backend, record=True).trajectories
+    table = table[table.time >= c.warmup - 1e-9]  # measured after the warm-up
     final = table[table.frame == table.groupby("episode").frame.transform("max")]
     others = table[~table.is_ego]
     fps = float(env.simulation_frequency)
@@ -212,6 +236,7 @@ def study_name(cfg: CalibrateAppConfig) -> str:
         "density": c.density,
         "mix": c.scene_mix,
         "from_data": c.scene_from_data,
+        "warmup": c.warmup,
         "episodes": c.episodes,
         "duration": c.duration,
         "seed": c.scene_seed,
@@ -371,6 +396,8 @@ def calibrate_to_data(
     the three as for the paper's mode)."""
     storage = open_storage(storage, key="calibrate.storage")  # a bad URL: at once
     observed = observe(cfg)
+    if cfg.calibrate.scene_from_data:
+        observed = replace(observed, vehicles_density=matched_density(cfg, observed))
     study = fit(cfg, observed, storage, progress)
     calibrated = behavior_from(cfg.behavior, dict(study.best_params))
     arms = {
@@ -430,6 +457,8 @@ def write_report(
             "lanes": env.lanes_count,
             "vehicles_count": env.vehicles_count,
             "vehicles_density": env.vehicles_density,
+            "vehicles_per_km_lane": _first_frame_density(cfg, env, mix),
+            "warmup": cfg.calibrate.warmup,
             "mix": mix,
         },
         "in_band": {arm: int(table[f"{arm}_in_band"].sum()) for arm in arms},
@@ -481,22 +510,18 @@ def write_report(
     fig.tight_layout()
     fig.savefig(out / "statistics.png", dpi=110)
     plt.close(fig)
-    fig, ax = plt.subplots(figsize=(5, 3.4))
-    done = [t for t in study.trials if t.value is not None]
-    ax.plot([t.number for t in done], [t.value for t in done], ".", alpha=0.5, label="trial")
-    ax.plot(
-        [t.number for t in done],
-        np.minimum.accumulate([t.value for t in done]),
-        "k-",
-        label="best so far",
-    )
-    ax.set_xlabel("trial")
-    ax.set_ylabel("weighted scaled distance")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "convergence.png", dpi=120)
-    plt.close(fig)
+    plot_convergence(study, out / "convergence.png", "weighted scaled distance")
     return summary
+
+
+def _first_frame_density(cfg: CalibrateAppConfig, env, mix: float) -> float:
+    """Vehicles per km and lane on the first frames of the calibration scenes (reported
+    beside the target's)."""
+    c = cfg.calibrate
+    probe = replace(cfg, env=replace(env, duration=1.0), mix=mix)
+    seeds = range(c.scene_seed, c.scene_seed + c.episodes)
+    table = rollout(env_config(probe), "idle", seeds, cfg.backend, record=True).trajectories
+    return scene(table[table.frame == 0]).vehicles_per_km_lane
 
 
 def _plot_sensitivity(table: pd.DataFrame, path: Path) -> None:

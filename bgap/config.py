@@ -445,6 +445,9 @@ class CalibrationConfig:
     """Simulate the target's lane count and aggressive share (else the ``density`` preset's
     lanes and ``scene_mix``)."""
     weights: StatisticWeights = field(default_factory=StatisticWeights)
+    warmup: float = 0.0
+    """Calibration to data: seconds simulated before each scene's measured ``duration``
+    (traffic recorded at a steady state has no start-up accelerations)."""
     sensitivity_points: int = 5
     """Calibration to data: values per parameter in the one-at-a-time sensitivity sweep
     around the best trial (0: no sensitivity report)."""
@@ -462,6 +465,7 @@ class CalibrationConfig:
             "0 (no report) or >= 2",
         )
         check(self.noise_repeats >= 1, "calibrate.noise_repeats", self.noise_repeats, ">= 1")
+        check(self.warmup >= 0, "calibrate.warmup", self.warmup, "must be >= 0 s")
         for c in self.classes:
             check(c in CLASSES, "calibrate.classes", self.classes, f"use {list(CLASSES)}")
         check(

@@ -71,3 +71,30 @@ def open_storage(url: str, key: str = "storage") -> optuna.storages.BaseStorage:
             f"{str(err).splitlines()[0][:160]}); use sqlite:///PATH, postgresql://..., or "
             "journal:PATH"
         ) from None
+
+
+def plot_convergence(study: optuna.Study, path: str | Path, ylabel: str) -> None:
+    """Every completed trial's value and the best so far (in the study's direction), as a
+    PNG: the convergence plot of the calibration to data and of CMetric's search."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    done = [t for t in study.trials if t.value is not None]
+    numbers, values = [t.number for t in done], np.array([t.value for t in done])
+    best = (
+        np.maximum.accumulate(values)
+        if study.direction == optuna.study.StudyDirection.MAXIMIZE
+        else np.minimum.accumulate(values)
+    )
+    fig, ax = plt.subplots(figsize=(6, 3.4))
+    ax.plot(numbers, values, ".", alpha=0.6, label="trial")
+    ax.plot(numbers, best, "-", color="k", label="best so far")
+    ax.set_xlabel("trial")
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -113,3 +113,19 @@ def test_a_short_calibration_writes_its_report_and_resumes(tmp_path, target):
         calibrate_to_data(more, storage_url(more), preset_file(more), report_dir(more), False)
     study = optuna.load_study(study_name=study_name(cfg), storage=storage_url(cfg))
     assert len(study.trials) == 3
+
+
+def test_the_target_density_is_matched(tmp_path):
+    """Traffic spawned at vehicles_density 0.5 (other seeds) is read back as 0.5: bgap's
+    spawning gap scales as 1 / vehicles_density."""
+    from bgap.calibrate_data import matched_density, observe
+    from bgap.rollout import rollout
+    from bgap.scenario import env_config
+    from tests.conftest import make_cfg
+
+    sparse_ish = make_cfg("env=dense", "mix=0.5", "env.duration=2", "env.vehicles_density=0.5")
+    table = rollout(env_config(sparse_ish), "idle", [60, 61, 62], "vector", record=True)
+    path = tmp_path / "half.parquet"
+    table.trajectories.to_parquet(path)
+    cfg = _cfg(tmp_path, path, "calibrate.episodes=3", "calibrate.min_vehicles=5")
+    assert matched_density(cfg, observe(cfg)) == pytest.approx(0.5, rel=0.1)

@@ -33,7 +33,7 @@ from bgap.cmetric.search.study import (
 from bgap.config import app, load
 from bgap.presets import selection_hint, write_preset
 from bgap.runs import VOLATILE, digest, save_run_metadata
-from bgap.studies import open_storage, sqlite_url
+from bgap.studies import open_storage, plot_convergence, sqlite_url
 
 NOT_CONTENT = (*VOLATILE, "trials", "storage", "preset")
 """Settings a rerun may change without changing what the study holds."""
@@ -176,16 +176,7 @@ def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.D
         fig.savefig(out / f"{kind}.png", dpi=110)
         plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(6, 3.4))
-    values = [t.value for t in study.trials if t.value is not None]
-    ax.plot(values, ".", alpha=0.6, label="trial")
-    ax.plot(pd.Series(values).cummax(), "-", color="k", label="best so far")
-    ax.set_xlabel("trial")
-    ax.set_ylabel("worst search-part AUC")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "convergence.png", dpi=110)
-    plt.close(fig)
+    plot_convergence(study, out / "convergence.png", "worst search-part AUC")
     return table
 
 
