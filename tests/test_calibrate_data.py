@@ -129,3 +129,48 @@ def test_the_target_density_is_matched(tmp_path):
     table.trajectories.to_parquet(path)
     cfg = _cfg(tmp_path, path, "calibrate.episodes=3", "calibrate.min_vehicles=5")
     assert matched_density(cfg, observe(cfg)) == pytest.approx(0.5, rel=0.1)
+
+
+@pytest.mark.slow
+def test_known_parameters_are_recovered(tmp_path):
+    """Issue 18's recovery test: bgap's dense traffic with known classes (not Table I's: the
+    aggressive class at v0 36 m/s, T 0.8 s; the conservative at v0 27 m/s, T 1.8 s; the
+    other parameters Table I's), 8 scenes of 30 s, used as the target. The search (v0 and T
+    of both classes, starting from Table I) recovers v0 within 2 m/s and T within 0.15 s,
+    and the calibrated traffic's statistics lie within their noise bands."""
+    from dataclasses import replace
+
+    from bgap.behaviors import DriverParams, paper_behavior
+    from bgap.calibrate import preset_file, report_dir, storage_url
+    from bgap.calibrate_data import calibrate_to_data
+    from bgap.presets import write_preset
+    from bgap.rollout import rollout
+    from bgap.scenario import env_config
+    from tests.conftest import make_cfg
+
+    paper = paper_behavior()
+    truth = {"aggressive": {"v0": 36.0, "time_gap": 0.8},
+             "conservative": {"v0": 27.0, "time_gap": 1.8}}  # fmt: skip
+    known = replace(
+        paper,
+        name="known",
+        **{c: DriverParams(**{**vars(getattr(paper, c)), **truth[c]}) for c in truth},
+    )
+    write_preset(known, "behavior", tmp_path / "known.yaml", "the recovery test's truth")
+    scene = replace(make_cfg("env=dense", "mix=0.5", "env.duration=30"), behavior=known)
+    table = rollout(env_config(scene), "idle", range(500, 508), "vector", record=True)
+    target = tmp_path / "known.parquet"
+    table.trajectories.to_parquet(target)
+    fixed = ("min_distance", "acc", "dec", "politeness", "min_acc_gain", "b_safe")
+    cfg = _cfg(
+        tmp_path, target, "calibrate.trials=60", "calibrate.episodes=8",
+        "calibrate.duration=30", "calibrate.sensitivity_points=0",
+        *(f"calibrate.bounds.{k}=null" for k in fixed),
+    )  # fmt: skip
+    summary = calibrate_to_data(cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg))
+    found = summary["parameters"]
+    for cls, values in truth.items():
+        assert found[cls]["v0"] == pytest.approx(values["v0"], abs=2.0), (cls, found[cls])
+        assert found[cls]["time_gap"] == pytest.approx(values["time_gap"], abs=0.15), found
+    stats = pd.read_csv(report_dir(cfg) / "statistics.csv")
+    assert stats.calibrated_in_band.all(), stats[~stats.calibrated_in_band]
