@@ -167,12 +167,8 @@ def matched_density(cfg: CalibrateAppConfig, observed: Observed) -> float:
     to 1 / vehicles_density (``Vehicle.create_random``), so the density scales linearly with
     it: measured on the first frames of the calibration scenes at density 1, then scaled
     (clipped to [0.1, 10])."""
-    c = cfg.calibrate
     env, mix = simulated_scene(cfg, replace(observed, vehicles_density=None))
-    probe = replace(cfg, env=replace(env, vehicles_density=1.0, duration=1.0), mix=mix)
-    seeds = range(c.scene_seed, c.scene_seed + c.episodes)
-    table = rollout(env_config(probe), "idle", seeds, cfg.backend, record=True).trajectories
-    at_one = scene(table[table.frame == 0]).vehicles_per_km_lane
+    at_one = _first_frame_density(cfg, replace(env, vehicles_density=1.0), mix)
     return float(np.clip(observed.scene.vehicles_per_km_lane / at_one, 0.1, 10.0))
 
 
@@ -339,9 +335,7 @@ def sensitivity(cfg: CalibrateAppConfig, observed: Observed, study: optuna.Study
     best (where it is not identified, about its whole interval)."""
     c = cfg.calibrate
     best = dict(study.best_params)
-    base = objective_value(
-        cfg, observed, simulate(cfg, behavior_from(cfg.behavior, best), observed)
-    )
+    base = study.best_value  # the same scenes give the same value (common random numbers)
     repeats = []
     for k in range(1, c.noise_repeats + 1):
         other = replace(cfg, calibrate=replace(c, scene_seed=c.scene_seed + 1000 * k))
