@@ -47,7 +47,7 @@ import optuna
 import pandas as pd
 
 from bgap.behaviors import BehaviorConfig, DriverParams, paper_behavior
-from bgap.cmetric.io import TrajectoryError, read_table
+from bgap.cmetric.io import TrajectoryError, load_trajectories
 from bgap.config import CalibrateAppConfig
 from bgap.kinematics import STATISTICS, Scene, class_samples, compare, driver_class, scene
 from bgap.presets import write_preset
@@ -92,10 +92,9 @@ def _bands(table: pd.DataFrame, samples: dict, cfg: CalibrateAppConfig, fps: flo
     """Per class and statistic, two standard errors of its mean: across the table's scenes
     (their means) where it has two or more, else of the sample mean (optimistic: it treats
     a scene's frames as independent)."""
-    episodes = table["episode"] if "episode" in table else table.get("scene")
     per_scene: dict[str, dict[str, list[float]]] = {cls: {} for cls in samples}
-    if episodes is not None and episodes.nunique() >= 2:
-        for _, part in table.groupby(episodes):
+    if table.episode.nunique() >= 2:
+        for _, part in table.groupby("episode"):
             try:
                 stats = _statistics(part, cfg, fps)
             except TrajectoryError:  # a scene CMetric cannot score (one vehicle, one frame)
@@ -122,29 +121,26 @@ def observe(cfg: CalibrateAppConfig) -> Observed:
     """Read and check the target table (every defect is an error before any simulation),
     then measure it."""
     c = cfg.calibrate
-    table = read_table(c.target)
+    table = load_trajectories(c.target, fps=c.target_fps, extra=("lane",))  # any alias
     if "label" not in table:
         raise TrajectoryError(
             f"{c.target} has no 'label' column: calibration to data needs each vehicle's "
             "class (labels starting with calibrate.aggressive_prefix are aggressive)"
         )
-    ids = "vehicle_id" if "vehicle_id" in table else ("id" if "id" in table else None)
-    if ids is not None:
-        scene_key = [k for k in ("episode", "scene") if k in table][:1]
-        per_vehicle = table.drop_duplicates([*scene_key, ids])
-        classes = driver_class(per_vehicle.label, c.aggressive_prefix)
-        counts = {cls: int((classes == cls).sum()) for cls in CLASSES}
-        few = {cls: n for cls, n in counts.items() if n < c.min_vehicles}
-        if few:
-            raise TrajectoryError(
-                f"{c.target}: too few vehicles of class {few} (calibrate.min_vehicles="
-                f"{c.min_vehicles}); both classes must be present, labelled "
-                f"'{c.aggressive_prefix}...' for aggressive and anything else for conservative"
-            )
+    per_vehicle = table.drop_duplicates(["episode", "vehicle_id"])
+    classes = driver_class(per_vehicle.label, c.aggressive_prefix)
+    counts = {cls: int((classes == cls).sum()) for cls in CLASSES}
+    few = {cls: n for cls, n in counts.items() if n < c.min_vehicles}
+    if few:
+        raise TrajectoryError(
+            f"{c.target}: too few vehicles of class {few} (calibrate.min_vehicles="
+            f"{c.min_vehicles}); both classes must be present, labelled "
+            f"'{c.aggressive_prefix}...' for aggressive and anything else for conservative"
+        )
     samples = _statistics(table, cfg, c.target_fps)
     band = _bands(table, samples, cfg, c.target_fps)
     found = scene(table, fps=c.target_fps, aggressive_prefix=c.aggressive_prefix)
-    return Observed(samples, band, found, counts if ids is not None else {})
+    return Observed(samples, band, found, counts)
 
 
 def simulated_scene(cfg: CalibrateAppConfig, observed: Observed) -> tuple[Any, float]:
