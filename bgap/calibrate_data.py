@@ -23,9 +23,10 @@ CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
   report shows the target's 85th-percentile speed beside it). ``calibrate.warmup`` seconds
   are simulated before the measured ``calibrate.duration`` (data recorded at a steady state).
 - **Converged** when every statistic's simulated mean lies within the noise band of the
-  difference: the target's band (two standard errors of that statistic's per-scene means
-  across its scenes) and the simulated scenes' band, combined in quadrature (a single
-  scene: the sample mean's, which treats its frames as independent: optimistic).
+  difference: the standard errors of the target's per-scene means and of the simulated
+  scenes' (a single scene: the sample mean's, which treats its frames as independent:
+  optimistic), combined in quadrature, times a Bonferroni z over the statistics compared
+  (:func:`comparison`).
 
 Outputs in the report folder: ``statistics.csv``/``.md`` (per class and statistic: target,
 Table I's traffic and the calibrated traffic, means and distances), ``statistics.png``
@@ -292,9 +293,19 @@ def fit(
 
 
 def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
-    """Per class and statistic: the target's mean and noise band, and per simulated arm
-    (``table1``, ``calibrated``) its mean, scaled distance, the band of the difference of
-    the two means (the target's and the arm's bands combined) and whether it lies within."""
+    """Per class and statistic: the target's mean and noise band (two standard errors), and
+    per simulated arm (``table1``, ``calibrated``) its mean, scaled distance, the band of
+    the difference of the two means and whether it lies within.
+
+    The difference's band joins the target's and the arm's standard errors in quadrature and
+    is Bonferroni-corrected over the m statistics compared: z = Phi^-1(1 - 0.05 / (2 m))
+    standard errors (2.81 for m = 10), so "every statistic lies in its band" is a claim at a
+    family-wise 95% (uncorrected, even the true parameters would miss one of ten statistics
+    in about two runs of five)."""
+    from scipy.stats import norm
+
+    m = sum(np.isfinite(b) for by_name in observed.band.values() for b in by_name.values())
+    z = float(norm.ppf(1 - 0.05 / (2 * max(m, 1))))
     rows = []
     for cls, by_name in observed.samples.items():
         for name in ALL_STATISTICS:
@@ -310,7 +321,7 @@ def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
                 one = table[table.statistic == name]
                 mean = float(one.simulated_mean.iloc[0]) if len(one) else np.nan
                 own = (sim.get("band") or {}).get(cls, {}).get(name, 0.0)
-                band = float(np.hypot(row["band"], own))  # both means are noisy
+                band = z * float(np.hypot(row["band"], own)) / 2  # both means are noisy
                 row[f"{arm}_mean"] = mean
                 row[f"{arm}_distance"] = float(one.scaled.iloc[0]) if len(one) else np.nan
                 row[f"{arm}_band"] = band

@@ -163,7 +163,7 @@ def test_known_parameters_are_recovered(tmp_path):
     table.trajectories.to_parquet(target)
     fixed = ("min_distance", "acc", "dec", "politeness", "min_acc_gain", "b_safe")
     cfg = _cfg(
-        tmp_path, target, "calibrate.trials=60", "calibrate.episodes=8",
+        tmp_path, target, "calibrate.trials=120", "calibrate.episodes=8",
         "calibrate.duration=30", "calibrate.sensitivity_points=0",
         *(f"calibrate.bounds.{k}=null" for k in fixed),
     )  # fmt: skip
