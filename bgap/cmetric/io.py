@@ -122,7 +122,7 @@ def load_trajectories(
         raise TrajectoryError("trajectory table has no rows")
     df = df.sort_values(["episode", "vehicle_id", "frame"], kind="stable").reset_index(drop=True)
     if "vx" not in df.columns or "vy" not in df.columns:
-        df["vx"], df["vy"] = _finite_difference_velocity(df)
+        df["vx"], df["vy"] = finite_difference_velocity(df)
     keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
     keep += [c for c in ("label", *extra) if c in df.columns]
     return df[keep]
@@ -145,7 +145,7 @@ def check_scoreable(df: pd.DataFrame) -> None:
         )
 
 
-def _finite_difference_velocity(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+def finite_difference_velocity(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """Central differences inside each vehicle's track, one-sided at its ends (np.gradient)."""
     vx = np.zeros(len(df))
     vy = np.zeros(len(df))

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.cmetric.io import TrajectoryError
+from bgap.cmetric.io import TrajectoryError, finite_difference_velocity
 
 FEET = 0.3048
 FPS = 10.0
@@ -72,12 +72,7 @@ def read(path: str | Path) -> pd.DataFrame:
             "y": table.Local_X * FEET,
         }
     )
-    for axis in ("x", "y"):  # central differences per vehicle (one-sided at the ends)
-        velocity = np.zeros(len(out))
-        for _, rows in out.groupby(["episode", "vehicle_id"]).indices.items():
-            if len(rows) > 1:
-                velocity[rows] = np.gradient(out[axis].values[rows], out.time.values[rows])
-        out[f"v{axis}"] = velocity
+    out["vx"], out["vy"] = finite_difference_velocity(out)  # rows sorted per vehicle in time
     out["speed"] = np.hypot(out.vx, out.vy)
     out["lane"] = (table.Lane_ID - 1).astype(np.int16)
     out["crashed"] = False
