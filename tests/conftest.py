@@ -27,9 +27,17 @@ def pytest_sessionstart(session) -> None:
         warm_compiled_kernels()
 
 
-LONG_FILES = ("test_pipeline.py", "test_pipeline_side.py", "test_install.py", "test_sweep.py")
-"""Test files that take a minute or more: collected first, so that pytest-xdist's
-``--dist loadfile`` starts them at once instead of leaving one to run alone at the end."""
+LONG_FILES = (
+    "test_pipeline.py",
+    "test_pipeline_side.py",
+    "test_train_evaluate.py",
+    "test_bad_inputs.py",
+    "test_sweep.py",
+    "test_install.py",
+)
+"""Test files that take most of a minute or more, longest first: collected first, so that
+pytest-xdist's ``--dist loadfile`` (with ``--no-loadscope-reorder``, pyproject.toml) starts
+them at once instead of leaving one to run alone at the end."""
 
 
 def pytest_collection_modifyitems(session, config, items) -> None:

@@ -68,7 +68,7 @@ def test_aggressive_vehicles_are_placed_at_random():
     assert len(orders) == 4
 
 
-def _present_vs_within(radius: float, seeds=range(2), steps=10):
+def _present_vs_within(radius: float, seeds=range(2), steps=5):
     env = make_env(make_cfg("env=dense", f"radius={radius}"))
     present = []
     for seed in seeds:
