@@ -92,6 +92,14 @@ def test_datasets_split_by_episode_parity_and_validation_data_never_tunes(data, 
     assert ("sumo_like", "search") not in by and len(by[("sumo_like", "validation")]) > 0
     cropped = by[("mix50@80m", "search")]
     assert len(cropped) < len(search)  # the crop dropped far vehicles
+    # crops_tune=false: the crops validate on every episode and never tune
+    cfg, _ = search_cfg(f"data_dir={data}", "radii=[null,80]", "crops_tune=false")
+    assert [(d.name, d.split) for d in cfg.datasets] == [
+        ("mix50", True), ("mix50@80m", False), ("mix80", True), ("mix80@80m", False),
+    ]  # fmt: skip
+    by = {(p.dataset, p.part): p.table for p in load_parts(cfg)}
+    assert ("mix50@80m", "search") not in by
+    assert set(by[("mix50@80m", "validation")].episode) == set(range(8))
 
 
 def test_search_runs_resumes_writes_a_preset_that_loads_everywhere(data, tmp_path, monkeypatch):

@@ -37,7 +37,7 @@ from bgap.studies import open_storage, plot_convergence, sqlite_url
 
 NOT_CONTENT = (*VOLATILE, "trials", "storage", "preset")
 """Settings a rerun may change without changing what the study holds."""
-ADDED_LATER = {"z": 0.0}
+ADDED_LATER = {"z": 0.0, "crops_tune": True}
 """Settings added after studies were first named, with the value those studies used."""
 
 
