@@ -20,7 +20,10 @@ CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
   (:func:`matched_density`) and the aggressive share of the target
   (:func:`bgap.kinematics.scene`), unless ``calibrate.scene_from_data=false``; the vehicle
   count stays the ``calibrate.density`` preset's and the limit highway-env's 30 m/s (the
-  report shows the target's 85th-percentile speed beside it). ``calibrate.warmup`` seconds
+  report shows the target's 85th-percentile speed beside it): bgap's drivers are not
+  clipped to the limit, which reaches only the ego, stock drivers and the spawn speeds
+  (forgotten in the warm-up), so one from the data would not change the classes' traffic.
+  ``calibrate.warmup`` seconds
   are simulated before the measured ``calibrate.duration`` (data recorded at a steady state).
 - **Converged** when every statistic's simulated mean lies within the noise band of the
   difference: the standard errors of the target's per-scene means and of the simulated
