@@ -218,6 +218,7 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     print(f"{num_envs} envs, {threads} threads, random ego actions, policy steps/s")
     head = f"{'scenario':<9}{'highway-env':>13}{'vector':>11}{'EnvPool':>11}"
     print(f"{head}{'vector/highway':>16}{'vector/EnvPool':>16}")
+    configs: dict[str, dict] = {}
     for density in ("dense", "sparse"):
         cfg = validate(compose("simulate", [f"env={density}"]))
         config = env_config(cfg)
@@ -229,7 +230,27 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
         pool_s = f"{pool:>11.0f}" if pool else f"{'n/a':>11}"
         ratio = f"{vec / pool:>16.2f}" if pool else f"{'n/a':>16}"
         print(f"{density:<9}{ref:>13.1f}{vec:>11.0f}{pool_s}{vec / ref:>16.0f}{ratio}")
+        configs[density] = config
     print("EnvPool has no behaviour classes (its traffic is highway-env's stock IDM).")
+    _print_phase_split(configs, num_envs, seconds)
+
+
+def _print_phase_split(configs: dict[str, dict], num_envs: int, seconds: float) -> None:
+    """Where a vector step's time goes: each phase as its own batched kernel
+    (:mod:`bgap.sim.phases`), in ns per env-step and as a share of the phases' sum."""
+    from bgap.sim.phases import PHASES, phase_split
+    from bgap.sim.vector import VectorHighway
+
+    print(f"\nvector backend per phase, {num_envs} envs (ns per env-step, % of the sum)")
+    print(f"{'phase':<24}" + "".join(f"{d:>20}" for d in configs))
+    splits = {d: phase_split(VectorHighway(c, num_envs), seconds) for d, c in configs.items()}
+    for phase in PHASES:
+        cells = "".join(
+            f"{splits[d][phase]:>12.0f} {100 * splits[d][phase] / sum(splits[d].values()):>6.1f}%"
+            for d in configs
+        )
+        print(f"{phase:<24}{cells}")
+    print("(each phase a kernel of its own here: the fused step above skips their launches)")
 
 
 def _learn_config(policy: str = "behavior_rich"):

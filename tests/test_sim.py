@@ -227,3 +227,26 @@ def test_sb3_adapter_hands_sb3_the_finished_episodes_last_observation():
     assert ends.sum() == len(lengths) and not timeouts[~ends].any()
     # Episodes cut by the 3 s limit are time-outs; those that crashed earlier are not.
     assert timeouts[ends].sum() > 0 and (~timeouts[ends]).sum() >= (lengths < 3).sum()
+
+
+def test_the_benchmarks_phase_by_phase_step_is_the_kernels_step():
+    """bgap.sim.phases cuts a step into batched phase kernels for the benchmark's split: it
+    must advance every env exactly as core.step_batch does, resets included."""
+    from bgap.sim.phases import PHASES, step_in_phases
+
+    config = env_config(make_cfg("env=sparse", "mix=0.5", "env.duration=4"))
+    whole, cut = VectorHighway(config, 6), VectorHighway(config, 6)
+    whole.reset(seed=3)
+    cut.reset(seed=3)
+    rng, clock, ended = np.random.default_rng(0), {}, 0
+    for _ in range(10):  # 4 s episodes: every env resets at least twice
+        actions = rng.integers(5, size=6)
+        obs, rewards, terminated, truncated, _ = whole.step(actions)
+        obs_cut, rewards_cut, done = step_in_phases(cut, actions, clock)
+        np.testing.assert_array_equal(done, terminated | truncated)
+        ended += int(done.sum())
+        np.testing.assert_array_equal(obs_cut, obs)
+        np.testing.assert_array_equal(rewards_cut, rewards)
+        for name in ("f", "g", "p", "steps"):
+            np.testing.assert_array_equal(getattr(cut, name), getattr(whole, name))
+    assert ended >= 12 and set(clock) == set(PHASES) and all(v > 0 for v in clock.values())
