@@ -131,6 +131,9 @@ def test_search_runs_resumes_writes_a_preset_that_loads_everywhere(data, tmp_pat
         for p in parts
     )
     assert study.trials[0].value == pytest.approx(worst)
+    # every trial checks the hand-built truths; one that breaks them is never the best
+    assert study.trials[0].user_attrs["broken truths"] == []
+    assert not study.best_trial.user_attrs["broken truths"]
     # the tuned row of the report is the best trial's parameters, and the preset loads
     monkeypatch.setenv("BGAP_PRESETS", str(out / "presets"))
     tuned = validate(compose("cmetric_app", ["cmetric=user_tuned", "input=x.csv"])).cmetric

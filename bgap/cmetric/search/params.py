@@ -48,6 +48,10 @@ class CMetricSearchConfig:
     z: float = 0.0
     """Each search part counts with its AUC less ``z`` standard errors (0: the AUC itself;
     1: a one-sigma lower bound, which keeps the smallest parts from deciding by noise)."""
+    known_truths: bool = True
+    """Refuse settings that break the hand-built scenes' truths (:mod:`bgap.cmetric.truths`:
+    a weaver, an overspeeder and a cruiser): such a trial scores its objective less 1, so
+    it can never be chosen while any setting keeps them."""
     max_flagged: float = 0.10
     """Largest share of a dataset's vehicles that may be flagged without a penalty."""
     fps: float = 15.0
