@@ -147,6 +147,82 @@ def test_initial_scenes_have_highway_envs_distribution():
         assert abs(a[col].mean() - b[col].mean()) < 4 * se, col
 
 
+def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) -> None:
+    """The scene draw as numpy code (VectorHighway._spawn before it was compiled), the
+    reference core.spawn must reproduce draw for draw."""
+    from bgap.behaviors import DRIVER_ATTRIBUTES, is_stock
+    from bgap.sim.vector import _COLUMNS, IDM_DEFAULTS, _column_value
+
+    cfg, lanes, n = venv.config, venv.lanes, venv.n
+    f, g, p = venv.f[b], venv.g[b], venv.p[b]
+    f[:], g[:] = 0.0, 0
+    p[:] = IDM_DEFAULTS
+    spread = np.exp(-5 / 40 * lanes)
+    lane_id = cfg.get("initial_lane_id")
+    ego_lane = int(lane_id) if lane_id is not None else int(rng.integers(lanes))
+    offset = float(cfg["ego_spacing"]) * (12 + 25.0) * spread
+    x = 3 * offset + offset * rng.uniform(0.9, 1.1)
+    f[0, core.X], f[0, core.Y], f[0, core.SPEED] = x, core.LANE_WIDTH * ego_lane, 25.0
+    g[0, core.LANE] = g[0, core.TARGET_LANE] = ego_lane
+    idx = core.speed_to_index(25.0, venv.speeds)
+    g[0, core.SPEED_INDEX], f[0, core.TARGET_SPEED] = idx, venv.speeds[idx]
+    g[0, core.LABEL] = core.EGO
+    labels = rng.permutation(np.array([core.AGGRESSIVE] * k + [core.CONSERVATIVE] * (n - k)))
+    lanes_bg = rng.integers(lanes, size=n)
+    speeds = rng.uniform(0.7 * core.SPEED_LIMIT, 0.8 * core.SPEED_LIMIT, size=n)
+    offsets = (1 / float(cfg["vehicles_density"])) * (12 + speeds) * spread
+    xs = x + np.cumsum(offsets * rng.uniform(0.9, 1.1, size=n))
+    sl = slice(1, n + 1)
+    f[sl, core.X], f[sl, core.Y], f[sl, core.SPEED] = xs, core.LANE_WIDTH * lanes_bg, speeds
+    f[sl, core.TARGET_SPEED] = speeds
+    f[sl, core.TIMER] = ((xs + core.LANE_WIDTH * lanes_bg) * np.pi) % core.LANE_CHANGE_DELAY
+    g[sl, core.LANE] = g[sl, core.TARGET_LANE] = lanes_bg
+    g[sl, core.LABEL] = labels
+    deltas = rng.uniform(3.5, 4.5, size=n)
+    for code, name in ((core.CONSERVATIVE, "conservative"), (core.AGGRESSIVE, "aggressive")):
+        rows = np.flatnonzero(labels == code) + 1
+        if rows.size == 0:
+            continue
+        params = venv.behavior[name]
+        p[rows, core.P_DELTA] = deltas[rows - 1]
+        for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
+            if params.get(key) is not None:
+                p[rows, _COLUMNS[attr]] = _column_value(attr, float(convert(params[key])))
+        if params.get("v0") is not None:
+            s = float(params.get("v0_spread") or 0.0)
+            f[rows, core.TARGET_SPEED] = float(params["v0"]) * rng.uniform(1 - s, 1 + s, rows.size)
+        if not is_stock(params):
+            p[rows, core.P_OWN] = 1.0
+            p[rows, core.P_VMAX] = BehaviorVehicle.MAX_SPEED
+
+
+@pytest.mark.parametrize(
+    "overrides, keys",
+    [
+        (("env=dense", "behavior=paper"), {"mix_sampling": "uniform"}),
+        (("env=sparse", "behavior=stock", "mix=0.4"), {}),
+        (
+            ("env=sparse", "behavior=calibrated", "behavior.converged=true", "mix=1.0"),
+            {"initial_lane_id": 2},
+        ),
+        (("env=dense", "mix=0.0"), {"lanes_count": 3, "ego_spacing": 1.5}),
+    ],
+)
+def test_compiled_scene_draw_is_the_numpy_draw(overrides, keys):
+    """core.spawn (numba's np.random.Generator) draws the numpy version's scenes from the same
+    streams bit for bit: every field of every vehicle, and the stream left where numpy
+    leaves it, so the next reset's scene is the same too."""
+    config = {**env_config(make_cfg(*overrides)), **keys}
+    venv, ref = VectorHighway(config, 1), VectorHighway(config, 1)
+    for seed in range(40):
+        venv.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        _numpy_spawn(ref, 0, rng, int(venv.n_aggressive[0]))
+        for name in ("f", "g", "p"):
+            np.testing.assert_array_equal(getattr(venv, name), getattr(ref, name), err_msg=name)
+        assert venv._rngs[0].bit_generator.state == rng.bit_generator.state
+
+
 def test_vector_env_api_seeding_and_autoreset():
     cfg = make_cfg("env=sparse", "env.duration=3")
     venv = VectorHighway(env_config(cfg), 4)

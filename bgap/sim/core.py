@@ -140,8 +140,11 @@ def desired_gap(f, p, b, driver, j, front):
     """IDMVehicle.desired_gap with ``driver``'s parameters for vehicle j behind ``front``."""
     hj, hf = f[b, j, HEADING], f[b, front, HEADING]
     vj, vf = f[b, j, SPEED], f[b, front, SPEED]
-    cj, sj = math.cos(hj), math.sin(hj)
-    dv = (vj * cj - vf * math.cos(hf)) * cj + (vj * sj - vf * math.sin(hf)) * sj
+    if hj == 0.0 and hf == 0.0:  # both along the road: the projection below is exactly this
+        dv = vj - vf
+    else:
+        cj, sj = math.cos(hj), math.sin(hj)
+        dv = (vj * cj - vf * math.cos(hf)) * cj + (vj * sj - vf * math.sin(hf)) * sj
     ab = p[b, driver, P_A] * p[b, driver, P_B]
     return p[b, driver, P_D0] + vj * p[b, driver, P_T] + vj * dv / (2 * math.sqrt(ab))
 
@@ -177,6 +180,8 @@ def steering_control(f, b, i, target_lane):
     """ControlledVehicle.steering_control towards the centre of ``target_lane``."""
     speed = f[b, i, SPEED]
     lateral = f[b, i, Y] - LANE_WIDTH * target_lane
+    if lateral == 0.0 and f[b, i, HEADING] == 0.0 and speed > 0:
+        return 0.0  # on the lane's centre line, heading along it: every term below is 0
     lateral_speed_command = -KP_LATERAL * lateral
     heading_command = math.asin(min(max(lateral_speed_command / not_zero(speed), -1.0), 1.0))
     heading_ref = min(max(heading_command, -math.pi / 4), math.pi / 4)
@@ -301,10 +306,14 @@ def vehicle_step(f, g, p, b, i, dt, lanes):
         f[b, i, ACC] = min(f[b, i, ACC], 1.0 * (vmax - speed))
     elif speed < MIN_SPEED:
         f[b, i, ACC] = max(f[b, i, ACC], 1.0 * (MIN_SPEED - speed))
-    beta = math.atan(0.5 * math.tan(f[b, i, STEER]))
     h = f[b, i, HEADING]
-    f[b, i, X] += speed * math.cos(h + beta) * dt
-    f[b, i, Y] += speed * math.sin(h + beta) * dt
+    if f[b, i, STEER] == 0.0 and h == 0.0:  # straight along x: the same numbers, no trigonometry
+        beta = f[b, i, STEER]  # atan(0.5 * tan(+-0)) is that same signed zero
+        f[b, i, X] += speed * dt
+    else:
+        beta = math.atan(0.5 * math.tan(f[b, i, STEER]))
+        f[b, i, X] += speed * math.cos(h + beta) * dt
+        f[b, i, Y] += speed * math.sin(h + beta) * dt
     if g[b, i, HAS_IMPACT]:
         f[b, i, X] += f[b, i, IMPACT_X]
         f[b, i, Y] += f[b, i, IMPACT_Y]
@@ -458,6 +467,154 @@ def frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb):
         vehicle_step(f, g, p, b, i, dt, lanes)
     sort_by_x(f, b, n, order, rank)
     collisions(f, g, b, n, dt, order, pairs, pa, pb)
+
+
+# Random draws: numpy's Generator algorithms on a PCG64 stream reached through its ctypes
+# interface (``next_double``, ``next_uint32`` and the state's address, passed as arguments
+# so that the compiled code stays cacheable). Written out because numba's own Generator
+# support costs ~30 us to unbox per call, more than the whole scene draw; these give numpy's
+# numbers from numpy's streams (tests/test_sim.py replays the draws with numpy).
+
+
+@_jit
+def _uniform(next_double, state, low, high):
+    """Generator.uniform(low, high): low + (high - low) * next_double (random_uniform)."""
+    return low + (high - low) * next_double(state)
+
+
+@_jit
+def _integer(next_uint32, state, high):
+    """Generator.integers(0, high) for 1 <= high <= 2**32 - 1 (bounded_lemire_uint32)."""
+    rng = np.uint64(high - 1)
+    if rng == 0:
+        return 0
+    rng_excl = rng + np.uint64(1)
+    m = np.uint64(next_uint32(state)) * rng_excl
+    leftover = m & np.uint64(0xFFFFFFFF)
+    if leftover < rng_excl:
+        threshold = (np.uint64(0xFFFFFFFF) - rng) % rng_excl
+        while leftover < threshold:
+            m = np.uint64(next_uint32(state)) * rng_excl
+            leftover = m & np.uint64(0xFFFFFFFF)
+    return np.int64(m >> np.uint64(32))
+
+
+@_jit
+def _interval(next_uint32, state, top):
+    """random_interval(top): a draw in [0, top] by masked rejection (what shuffle uses)."""
+    if top == 0:
+        return 0
+    mask = np.uint64(top)
+    for shift in (1, 2, 4, 8, 16, 32):
+        mask |= mask >> np.uint64(shift)
+    value = np.uint64(next_uint32(state)) & mask
+    while value > np.uint64(top):
+        value = np.uint64(next_uint32(state)) & mask
+    return np.int64(value)
+
+
+@_jit
+def spawn(f, g, p, b, k, ego_lane, setup, speeds, classes, next_double, next_uint32, state):
+    """HighwayEnv._create_vehicles with bgap's classes, for env b, drawn from the PCG64
+    stream at ``state`` in the order and by the algorithms of numpy's Generator (the numpy
+    version of this draw is ``tests/test_sim.py``'s reference): the ego's lane (when
+    ``ego_lane`` < 0), its spacing, the permutation of the class labels, the background's
+    lanes, speeds and spacings, the IDM deltas, then each class's desired-speed spread.
+
+    Args: ``k`` aggressive drivers among the background; ``setup`` = (lanes, ego_spacing *
+    37 m * Vehicle.create_random's spacing factor, 1 / vehicles_density, the spacing
+    factor); ``classes`` (3, 3 + N_PARAM): the ego's row, then per class (conservative,
+    aggressive) its code, desired speed v0 (NaN: the spawn speed), v0's relative spread
+    and its parameter row, whose P_DELTA is NaN where the class draws its delta.
+    """
+    lanes, ego_offset, inv_density, spread = int(setup[0]), setup[1], setup[2], setup[3]
+    n_veh = f.shape[1]
+    n = n_veh - 1
+    for i in range(n_veh):
+        for c in range(f.shape[2]):
+            f[b, i, c] = 0.0
+        for c in range(g.shape[2]):
+            g[b, i, c] = 0
+    if ego_lane < 0:
+        ego_lane = _integer(next_uint32, state, lanes)
+    x = 3 * ego_offset + ego_offset * _uniform(next_double, state, 0.9, 1.1)
+    f[b, 0, X], f[b, 0, Y], f[b, 0, SPEED] = x, LANE_WIDTH * ego_lane, 25.0
+    g[b, 0, LANE] = ego_lane
+    g[b, 0, TARGET_LANE] = ego_lane
+    idx = speed_to_index(25.0, speeds)
+    g[b, 0, SPEED_INDEX], f[b, 0, TARGET_SPEED] = idx, speeds[idx]
+    g[b, 0, LABEL] = EGO
+    for q in range(p.shape[2]):
+        p[b, 0, q] = classes[0, 3 + q]
+    labels = np.empty(n, np.int64)
+    for i in range(n):
+        labels[i] = AGGRESSIVE if i < k else CONSERVATIVE
+    for i in range(n - 1, 0, -1):  # Generator.permutation: shuffle a copy
+        j = _interval(next_uint32, state, i)
+        labels[i], labels[j] = labels[j], labels[i]
+    lanes_bg = np.empty(n, np.int64)
+    for i in range(n):
+        lanes_bg[i] = _integer(next_uint32, state, lanes)
+    v, spacing, deltas = np.empty(n), np.empty(n), np.empty(n)
+    for i in range(n):
+        v[i] = _uniform(next_double, state, 0.7 * SPEED_LIMIT, 0.8 * SPEED_LIMIT)
+    for i in range(n):
+        spacing[i] = _uniform(next_double, state, 0.9, 1.1)
+    for i in range(n):
+        deltas[i] = _uniform(next_double, state, 3.5, 4.5)
+    travelled = 0.0  # np.cumsum's running sum, in its order
+    for i in range(n):
+        travelled += inv_density * (12 + v[i]) * spread * spacing[i]
+        j = i + 1
+        f[b, j, X] = x + travelled
+        f[b, j, Y] = LANE_WIDTH * lanes_bg[i]
+        f[b, j, SPEED] = v[i]
+        f[b, j, TARGET_SPEED] = v[i]
+        f[b, j, TIMER] = ((f[b, j, X] + LANE_WIDTH * lanes_bg[i]) * np.pi) % LANE_CHANGE_DELAY
+        g[b, j, LANE] = lanes_bg[i]
+        g[b, j, TARGET_LANE] = lanes_bg[i]
+        g[b, j, LABEL] = labels[i]
+    for c in range(1, classes.shape[0]):
+        code = classes[c, 0]
+        count = 0
+        for i in range(n):
+            if labels[i] == code:
+                count += 1
+                for q in range(p.shape[2]):
+                    p[b, i + 1, q] = classes[c, 3 + q]
+                if math.isnan(classes[c, 3 + P_DELTA]):
+                    p[b, i + 1, P_DELTA] = deltas[i]
+        if count == 0 or math.isnan(classes[c, 1]):
+            continue
+        s = classes[c, 2]
+        for i in range(n):  # one draw per vehicle of the class, in road order
+            if labels[i] == code:
+                f[b, i + 1, TARGET_SPEED] = classes[c, 1] * _uniform(
+                    next_double, state, 1 - s, 1 + s
+                )
+
+
+@nb.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def spawn_batch(
+    f, g, p, envs, ks, ego_lane, setup, speeds, classes, next_double, next_uint32, states
+):
+    """:func:`spawn` for each env in ``envs`` (``ks`` and ``states`` aligned with it), in
+    parallel: every env draws from its own stream."""
+    for a in nb.prange(envs.shape[0]):
+        spawn(
+            f,
+            g,
+            p,
+            envs[a],
+            ks[a],
+            ego_lane,
+            setup,
+            speeds,
+            classes,
+            next_double,
+            next_uint32,
+            states[a],
+        )
 
 
 @_jit

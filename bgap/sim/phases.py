@@ -132,8 +132,7 @@ def step_in_phases(venv: Any, actions: np.ndarray, clock: dict[str, float] | Non
     done = (terms["collision_reward"] > 0) | (venv.steps >= venv.max_steps)
     timed("reward+info", lambda: venv._info(terms["lane_change_reward"] > 0))
     if done.any():
-        for b in np.flatnonzero(done):
-            timed("resets", lambda b=b: venv._spawn(b))
+        timed("resets", lambda: venv._spawn(np.flatnonzero(done)))
         obs = timed("resets", venv._observe)  # the new scenes' first observation
     return obs, rewards, done
 

@@ -45,7 +45,6 @@ from bgap.sim.core import (
     HEADING,
     LABEL,
     LANE,
-    LANE_WIDTH,
     N_FLOAT,
     N_INT,
     N_PARAM,
@@ -60,6 +59,10 @@ from bgap.sim.core import (
 )
 
 _CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
+# The ctypes interface of numpy's PCG64, whose C functions every PCG64 stream shares: the
+# compiled scene draw calls them on each env's stream (core.spawn).
+_PCG64_KEPT = np.random.PCG64()  # alive, though only its functions are used
+_PCG64 = _PCG64_KEPT.ctypes
 
 # Parameter column of each IDMVehicle attribute, in highway-env's units except P_B, which
 # holds the braking magnitude -COMFORT_ACC_MIN.
@@ -183,6 +186,12 @@ class VectorHighway(gym.vector.VectorEnv):
         self._terms = np.zeros((b, 5))
         self._rngs = [np.random.default_rng() for _ in range(b)]
         self._mix_rngs = [np.random.default_rng() for _ in range(b)]
+        spread = float(np.exp(-5 / 40 * self.lanes))  # Vehicle.create_random's spacing factor
+        ego_offset = float(cfg["ego_spacing"]) * (12 + 25.0) * spread
+        self._setup = np.array([self.lanes, ego_offset, 1 / float(cfg["vehicles_density"]), spread])
+        lane_id = cfg.get("initial_lane_id")
+        self._ego_lane = -1 if lane_id is None else int(lane_id)
+        self._classes = self._class_table()
         self.single_observation_space = spaces.Box(-1.0, 1.0, (self.rows, 5), np.float32)
         self.single_action_space = spaces.Discrete(5)
         self.observation_space = spaces.Box(-1.0, 1.0, (b, self.rows, 5), np.float32)
@@ -193,53 +202,62 @@ class VectorHighway(gym.vector.VectorEnv):
         self._x_range, self._v_range = 5.0 * core.EGO_MAX_SPEED, 2.0 * core.EGO_MAX_SPEED
 
     # ------------------------------------------------------------------ scenes
-    def _spawn(self, b: int) -> None:
-        """highway-env's HighwayEnv._create_vehicles with bgap's classes, for env b."""
-        rng, cfg, lanes, n = self._rngs[b], self.config, self.lanes, self.n
-        f, g, p = self.f[b], self.g[b], self.p[b]
-        f[:], g[:] = 0.0, 0
-        p[:] = IDM_DEFAULTS
-        spread = np.exp(-5 / 40 * lanes)  # Vehicle.create_random's spacing factor
-        lane_id = cfg.get("initial_lane_id")
-        ego_lane = int(lane_id) if lane_id is not None else int(rng.integers(lanes))
-        offset = float(cfg["ego_spacing"]) * (12 + 25.0) * spread
-        x = 3 * offset + offset * rng.uniform(0.9, 1.1)
-        f[0, X], f[0, Y], f[0, SPEED] = x, LANE_WIDTH * ego_lane, 25.0
-        g[0, LANE] = g[0, TARGET_LANE] = ego_lane
-        idx = core.speed_to_index(25.0, self.speeds)
-        g[0, SPEED_INDEX], f[0, TARGET_SPEED] = idx, self.speeds[idx]
-        g[0, LABEL] = EGO
-        self.n_aggressive[b] = count_aggressive(episode_mix(cfg, self._mix_rngs[b]), n)
-        k = int(self.n_aggressive[b])
-        labels = np.array([AGGRESSIVE] * k + [CONSERVATIVE] * (n - k))
-        labels = rng.permutation(labels)
-        lanes_bg = rng.integers(lanes, size=n)
-        speeds = rng.uniform(0.7 * core.SPEED_LIMIT, 0.8 * core.SPEED_LIMIT, size=n)
-        offsets = (1 / float(cfg["vehicles_density"])) * (12 + speeds) * spread
-        xs = x + np.cumsum(offsets * rng.uniform(0.9, 1.1, size=n))
-        sl = slice(1, n + 1)
-        f[sl, X], f[sl, Y], f[sl, SPEED] = xs, LANE_WIDTH * lanes_bg, speeds
-        f[sl, TARGET_SPEED] = speeds
-        f[sl, TIMER] = ((xs + LANE_WIDTH * lanes_bg) * np.pi) % core.LANE_CHANGE_DELAY
-        g[sl, LANE] = g[sl, TARGET_LANE] = lanes_bg
-        g[sl, LABEL] = labels
-        deltas = rng.uniform(3.5, 4.5, size=n)
-        for code, name in ((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive")):
-            rows = np.flatnonzero(labels == code) + 1
-            if rows.size == 0:
-                continue
+    def _spawn(self, envs: np.ndarray) -> None:
+        """highway-env's HighwayEnv._create_vehicles with bgap's classes, for each env in
+        ``envs``: each env's mix from its mix stream here, its scene drawn by the compiled
+        :func:`bgap.sim.core.spawn_batch` from its own stream."""
+        envs = np.asarray(envs, dtype=np.int64)
+        for b in envs:
+            self.n_aggressive[b] = count_aggressive(
+                episode_mix(self.config, self._mix_rngs[b]), self.n
+            )
+        states = np.empty(envs.size, dtype=np.uint64)
+        for a, b in enumerate(envs):
+            bit_generator = self._rngs[b].bit_generator
+            if not isinstance(bit_generator, np.random.PCG64):  # the kernel's draws are PCG64's
+                raise TypeError(f"env {b}'s stream is {type(bit_generator).__name__}, not PCG64")
+            states[a] = bit_generator.ctypes.state_address
+        core.spawn_batch(
+            self.f,
+            self.g,
+            self.p,
+            envs,
+            self.n_aggressive[envs],
+            self._ego_lane,
+            self._setup,
+            self.speeds,
+            self._classes,
+            _PCG64.next_double,
+            _PCG64.next_uint32,
+            states,
+        )
+        self.steps[envs] = 0
+
+    def _class_table(self) -> np.ndarray:
+        """:func:`bgap.sim.core.spawn`'s ``classes``: the ego's row (highway-env's IDM
+        defaults), then each class's code, v0, v0 spread and parameter row."""
+        table = np.zeros((3, 3 + N_PARAM))
+        table[0, 3:] = IDM_DEFAULTS
+        for c, (code, name) in enumerate(
+            ((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive"))
+        ):
             params = self.behavior[name]
-            p[rows, core.P_DELTA] = deltas[rows - 1]
+            row = IDM_DEFAULTS.copy()
+            row[core.P_DELTA] = np.nan  # drawn per vehicle unless the class sets it
             for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
                 if params.get(key) is not None:
-                    p[rows, _COLUMNS[attr]] = _column_value(attr, float(convert(params[key])))
-            if params.get("v0") is not None:
-                s = float(params.get("v0_spread") or 0.0)
-                f[rows, TARGET_SPEED] = float(params["v0"]) * rng.uniform(1 - s, 1 + s, rows.size)
+                    row[_COLUMNS[attr]] = _column_value(attr, float(convert(params[key])))
             if not is_stock(params):
-                p[rows, core.P_OWN] = 1.0
-                p[rows, core.P_VMAX] = BehaviorVehicle.MAX_SPEED
-        self.steps[b] = 0
+                row[core.P_OWN] = 1.0
+                row[core.P_VMAX] = BehaviorVehicle.MAX_SPEED
+            v0 = params.get("v0")
+            table[c + 1, :3] = (
+                code,
+                np.nan if v0 is None else float(v0),
+                float(params.get("v0_spread") or 0.0),
+            )
+            table[c + 1, 3:] = row
+        return table
 
     def load_scene(self, b: int, scene: Scene) -> None:
         """Put ``scene`` (e.g. from :func:`scene_from_highway`) into env b."""
@@ -293,8 +311,7 @@ class VectorHighway(gym.vector.VectorEnv):
                 raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} envs")
             self._rngs = [np.random.default_rng(s) for s in seeds]
             self._mix_rngs = [mix_stream(s) for s in seeds]
-        for b in range(self.num_envs):
-            self._spawn(b)
+        self._spawn(np.arange(self.num_envs))
         obs = self._observe()
         zero = np.zeros(self.num_envs, dtype=bool)
         info = self._info(zero)
@@ -339,7 +356,7 @@ class VectorHighway(gym.vector.VectorEnv):
             info["_final_obs"] = done.copy()
             for b in np.flatnonzero(done):
                 info["final_obs"][b] = obs[b].copy()
-                self._spawn(b)
+            self._spawn(np.flatnonzero(done))
             obs = self._observe()
             if self.record:
                 info["reset_frames"] = initial_states(self)
