@@ -454,6 +454,12 @@ class CalibrationConfig:
     noise_repeats: int = 3
     """... and other scene sets the best parameters rerun on to measure the objective's
     noise."""
+    reference_penalty: float = 0.0
+    """Calibration to data: this times the weighted mean, over the statistics, of how much
+    farther a trial's traffic lies from the target than Table I's traffic on the same scenes
+    (scaled distance; 0 where it is closer) is added to the objective, so that the search
+    does not buy a lower mean by giving up statistics Table I already matched (0: the plain
+    weighted mean)."""
 
     def __post_init__(self) -> None:
         check(self.target_fps > 0, "calibrate.target_fps", self.target_fps, "must be > 0")
@@ -466,6 +472,12 @@ class CalibrationConfig:
         )
         check(self.noise_repeats >= 1, "calibrate.noise_repeats", self.noise_repeats, ">= 1")
         check(self.warmup >= 0, "calibrate.warmup", self.warmup, "must be >= 0 s")
+        check(
+            self.reference_penalty >= 0,
+            "calibrate.reference_penalty",
+            self.reference_penalty,
+            "must be >= 0 (0: no penalty)",
+        )
         for c in self.classes:
             check(c in CLASSES, "calibrate.classes", self.classes, f"use {list(CLASSES)}")
         check(

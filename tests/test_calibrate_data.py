@@ -115,6 +115,36 @@ def test_a_short_calibration_writes_its_report_and_resumes(tmp_path, target):
     assert len(study.trials) == 3
 
 
+def test_the_reference_penalty_charges_each_statistic_matched_worse_than_table1(tmp_path, target):
+    """Hand-computed: simulated speeds [1, 3] against observed [0, 2] are 1 observed standard
+    deviation away (Wasserstein-1), headways [0, 2] against [0, 2] none. With Table I at 0.4
+    and 0.5, only speed is worse, by 0.6: a mean excess of 0.3, so a penalty of 2 adds 0.6
+    to the mean distance of 0.5."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from bgap.calibrate_data import objective_value
+
+    observed = SimpleNamespace(
+        samples={"aggressive": {"speed": np.array([0.0, 2.0]), "headway": np.array([0.0, 2.0])}}
+    )
+    sim = {
+        "samples": {"aggressive": {"speed": np.array([1.0, 3.0]), "headway": np.array([0.0, 2.0])}},
+        "crashed": 0.0,
+        "speed": {"aggressive": 20.0, "conservative": 20.0},
+    }
+    table1 = pd.Series(
+        [0.4, 0.5],
+        index=pd.MultiIndex.from_tuples([("aggressive", "speed"), ("aggressive", "headway")]),
+    )
+    plain = _cfg(tmp_path, target)
+    penalised = _cfg(tmp_path, target, "calibrate.reference_penalty=2")
+    assert objective_value(plain, observed, sim, table1) == pytest.approx(0.5)
+    assert objective_value(penalised, observed, sim) == pytest.approx(0.5)  # no reference
+    assert objective_value(penalised, observed, sim, table1) == pytest.approx(0.5 + 2 * 0.3)
+
+
 def test_the_target_density_is_matched(tmp_path):
     """Traffic spawned at vehicles_density 0.5 (other seeds) is read back as 0.5: bgap's
     spawning gap scales as 1 / vehicles_density."""
