@@ -27,6 +27,14 @@ def pytest_sessionstart(session) -> None:
         warm_compiled_kernels()
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _sb3_logs_in_pytests_tmp(tmp_path_factory) -> None:
+    """SB3 models learning without a tensorboard folder (the agent tests) log nowhere, but
+    SB3 still makes an empty ``$TMPDIR/SB3-<time>`` folder per ``learn`` unless
+    ``SB3_LOGDIR`` names one: keep them in pytest's temporary folder, which it prunes."""
+    os.environ["SB3_LOGDIR"] = str(tmp_path_factory.mktemp("sb3"))
+
+
 LONG_FILES = (
     "test_pipeline.py",
     "test_pipeline_side.py",
