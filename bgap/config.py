@@ -561,10 +561,23 @@ class RecipeConfig(SweepConfig):
     preset_name: str = "user_recipe"
     """Name of the written presets (``reward=user_recipe agent=user_recipe``); the pipeline's
     stage writes the packaged ``recipe``, which a user's preset must not shadow."""
+    stock_check: bool = False
+    """Also train each candidate's default policy (highway-env's stock traffic) with every
+    check seed, and rank the candidates whose default policy misses the stock rule (fewer
+    than ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's speed, on stock
+    validation episodes) after those that meet it: the recipe is shared by both policies."""
+    stock_max_collision_pct: float = 50.0
+    """The stock rule's collision bound (issue 20: under half of the episodes)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check(self.mode != "multi", "mode", self.mode, "a recipe needs one objective")
+        check(
+            0 < self.stock_max_collision_pct <= 100,
+            "stock_max_collision_pct",
+            self.stock_max_collision_pct,
+            "a percentage in (0, 100]",
+        )
         check(self.candidates >= 1, "candidates", self.candidates, "must be >= 1")
         check(len(self.check_seeds) >= 2, "check_seeds", self.check_seeds, ">= 2 seeds")
         check(self.check_episodes >= 10, "check_episodes", self.check_episodes, ">= 10")

@@ -15,6 +15,9 @@ Three steps, all on validation episodes (seeds ``val_seed + k``; the test episod
    ``check_seeds`` and played on ``check_episodes`` validation episodes, beside the idle and
    rule-based egos on the same episodes. One trial's single lucky seed does not make a
    recipe: the chosen candidate is the best by the same rule applied to its mean over seeds.
+   With ``stock_check=true`` each candidate's default policy is trained too (stock traffic,
+   the same seeds), and candidates whose default policy misses issue 20's stock rule (under
+   half of the episodes crashed, at 0.9 x idle's speed) rank after those that meet it.
 3. **Presets**: the chosen candidate's reward and agent groups as
    ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` under ``preset_dir``
    (default ``<root>/presets/.../user_recipe.yaml``, then ``reward=user_recipe
@@ -95,33 +98,67 @@ def check_candidate(
             if name == "policy":
                 row["lane_changes"] = float(ep.lane_changes.mean())
                 row.update(crash_split(ep))
+        if cfg.stock_check:  # the same recipe's default policy, in its own (stock) traffic
+            stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
+            train(replace(stock, resume=True), progress=progress)
+            for name, policy in (("stock", stock.run_dir), ("stock_idle", "idle")):
+                ep = validation_episodes(policy, stock, cfg.check_episodes)
+                row[f"{name}_collision_pct"] = 100.0 * float(ep.crashed.mean())
+                row[f"{name}_avg_speed"] = float(ep.avg_speed.mean())
         rows.append(row)
         print(
             f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
             f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
-            f"{row['idle_avg_speed']:.2f} m/s)",
+            f"{row['idle_avg_speed']:.2f} m/s)"
+            + (
+                f"; default in stock traffic {row['stock_collision_pct']:.0f}% at "
+                f"{row['stock_avg_speed']:.2f} m/s (idle {row['stock_idle_avg_speed']:.2f})"
+                if cfg.stock_check
+                else ""
+            ),  # fmt: skip
             flush=True,
         )
     return rows
 
 
+STOCK_KEYS = ("stock_collision_pct", "stock_avg_speed", "stock_idle_collision_pct",
+              "stock_idle_avg_speed")  # fmt: skip
+"""The default policy's figures in stock traffic (``stock_check``), per check seed."""
+
+
+def meets_stock_rule(cfg: RecipeConfig, row: Any) -> bool:
+    """Issue 20's rule for the default policy in its own traffic: fewer than
+    ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's mean speed."""
+    return bool(
+        row["stock_collision_pct"] < cfg.stock_max_collision_pct
+        and row["stock_avg_speed"] >= cfg.speed_floor * row["stock_idle_avg_speed"]
+    )
+
+
 def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
     """Per candidate: means over seeds, 95% t intervals across seeds, the objective of the
-    means; sorted best first."""
+    means; sorted best first. With the stock check's columns, candidates whose default
+    policy meets :func:`meets_stock_rule` (on its means over seeds) come first."""
+    stock = all(key in table for key in STOCK_KEYS)
     rows = []
     for trial, g in table.groupby("trial"):
         row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
         for key in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed",
                     "rule_collision_pct", "rule_avg_speed", "lane_changes",
-                    *(f"{kind}_pct" for kind in CRASH_KINDS)):  # fmt: skip
+                    *(f"{kind}_pct" for kind in CRASH_KINDS),
+                    *(STOCK_KEYS if stock else ())):  # fmt: skip
             row[key] = float(g[key].mean()) if key in g else 0.0
         for key, top in (("collision_pct", 100.0), ("avg_speed", np.inf)):
             lo, hi = t_interval(g[key].to_numpy())
             row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
         row["objective"] = objective(cfg, row["collision_pct"], row["avg_speed"],
                                      row["idle_avg_speed"])  # fmt: skip
+        row["stock_rule"] = meets_stock_rule(cfg, row) if stock else True
         rows.append(row)
-    return pd.DataFrame(rows).sort_values(["objective", "trial"]).reset_index(drop=True)
+    summary = pd.DataFrame(rows)
+    summary["_misses"] = ~summary.stock_rule
+    order = summary.sort_values(["_misses", "objective", "trial"]).drop(columns="_misses")
+    return order.reset_index(drop=True)
 
 
 def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
@@ -188,6 +225,23 @@ def markdown(cfg: RecipeConfig, summary: pd.DataFrame, params: dict[str, dict]) 
             f"{r.idle_avg_speed:.2f} | {r.rule_collision_pct:.1f} / {r.rule_avg_speed:.2f} "
             f"| {r.lane_changes:.1f} | {settings} |"
         )
+    if "stock_collision_pct" in summary:
+        lines += [
+            "",
+            "The default policy (the same recipe, trained in highway-env's stock traffic), on "
+            f"stock validation episodes; rule: under {cfg.stock_max_collision_pct:g}% "
+            f"collisions at {cfg.speed_floor:g} x idle's speed or more. Candidates that miss "
+            "it rank after those that meet it.",
+            "",
+            "| trial | collisions % | speed m/s | idle % / m/s | meets the rule |",
+            "|---|---|---|---|---|",
+            *(
+                f"| {r.trial} | {r.stock_collision_pct:.1f} | {r.stock_avg_speed:.2f} | "
+                f"{r.stock_idle_collision_pct:.1f} / {r.stock_idle_avg_speed:.2f} | "
+                f"{'yes' if r.stock_rule else '**no**'} |"
+                for r in summary.itertuples()
+            ),
+        ]
     return "\n".join(lines) + "\n"
 
 

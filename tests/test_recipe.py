@@ -46,6 +46,33 @@ def test_choice_uses_the_mean_over_seeds_not_one_lucky_seed():
     assert 0.0 <= best.collision_pct_lo < 10.0 < best.collision_pct_hi <= 100.0
 
 
+def test_with_the_stock_check_a_candidate_whose_default_policy_crawls_ranks_last():
+    """Trial 1 is best in behaviour-rich traffic, but its default policy drives 19.5 m/s in
+    stock traffic against idle's 24 (floor 21.6); trial 2's drives 22 m/s at 10%: trial 2
+    is chosen. Trial 3 meets the speed but crashes in 60% (bound 50%)."""
+    from bgap.recipe import markdown
+
+    cfg = _cfg("stock_check=true")
+    rows = []
+    for trial, crash, stock_crash, stock_speed in ((1, 5.0, 1.0, 19.5), (2, 8.0, 10.0, 22.0),
+                                                   (3, 6.0, 60.0, 23.0)):  # fmt: skip
+        for seed in range(2):
+            rows.append(
+                {"trial": trial, "seed": seed, "collision_pct": crash, "avg_speed": 24.0,
+                 "idle_collision_pct": 9.0, "idle_avg_speed": 25.0,
+                 "rule_collision_pct": 1.0, "rule_avg_speed": 27.0, "lane_changes": 1.0,
+                 "stock_collision_pct": stock_crash, "stock_avg_speed": stock_speed,
+                 "stock_idle_collision_pct": 100.0, "stock_idle_avg_speed": 24.0}
+            )  # fmt: skip
+    summary = choose(cfg, pd.DataFrame(rows))
+    assert list(summary.trial) == [2, 1, 3]
+    assert list(summary.stock_rule) == [True, False, False]
+    table = markdown(cfg, summary, {t: {"gamma": 0.9} for t in (1, 2, 3)})
+    assert "| 2 | 10.0 | 22.00 | 100.0 / 24.00 | yes |" in table
+    without = choose(_cfg(), pd.DataFrame(rows).drop(columns=["stock_avg_speed"]))
+    assert list(without.trial) == [1, 3, 2]  # no stock figures: the objective alone
+
+
 def test_the_recipe_config_refuses_a_multi_objective_or_a_single_seed_check():
     from bgap.errors import ConfigError
 
@@ -62,10 +89,14 @@ def test_a_tiny_recipe_writes_its_presets_and_tables(tmp_path):
     cfg = _cfg(
         "profile=tiny", "profile.eval_every_episodes=3", "trials=2", "candidates=2",
         "check_seeds=[0,1]", "check_episodes=10", "sweep_eval_episodes=4", f"root={tmp_path}",
+        "stock_check=true",
     )  # fmt: skip
     paths = recipe(cfg, progress=False)
     table = pd.read_csv(paths["candidates"])
     assert len(table) == 4 and set(table.seed) == {0, 1}
+    # the stock check trained each candidate's default policy too, and idle crashes in stock
+    assert table.stock_avg_speed.between(5, 40).all() and (table.stock_idle_avg_speed > 20).all()
+    assert "meets the rule" in paths["table"].read_text()
     reward = validate(
         compose("train", ["reward=user_recipe", f"hydra.searchpath=[file://{tmp_path}/presets]"])
     ).reward
