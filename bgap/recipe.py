@@ -106,18 +106,17 @@ def check_candidate(
                 row[f"{name}_collision_pct"] = 100.0 * float(ep.crashed.mean())
                 row[f"{name}_avg_speed"] = float(ep.avg_speed.mean())
         rows.append(row)
-        print(
+        message = (
             f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
             f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
             f"{row['idle_avg_speed']:.2f} m/s)"
-            + (
+        )
+        if cfg.stock_check:
+            message += (
                 f"; default in stock traffic {row['stock_collision_pct']:.0f}% at "
                 f"{row['stock_avg_speed']:.2f} m/s (idle {row['stock_idle_avg_speed']:.2f})"
-                if cfg.stock_check
-                else ""
-            ),  # fmt: skip
-            flush=True,
-        )
+            )
+        print(message, flush=True)
     return rows
 
 
@@ -153,9 +152,12 @@ def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
             row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
         row["objective"] = objective(cfg, row["collision_pct"], row["avg_speed"],
                                      row["idle_avg_speed"])  # fmt: skip
-        row["stock_rule"] = meets_stock_rule(cfg, row) if stock else True
+        if stock:
+            row["stock_rule"] = meets_stock_rule(cfg, row)
         rows.append(row)
     summary = pd.DataFrame(rows)
+    if not stock:
+        return summary.sort_values(["objective", "trial"]).reset_index(drop=True)
     summary["_misses"] = ~summary.stock_rule
     order = summary.sort_values(["_misses", "objective", "trial"]).drop(columns="_misses")
     return order.reset_index(drop=True)

@@ -71,6 +71,7 @@ def test_with_the_stock_check_a_candidate_whose_default_policy_crawls_ranks_last
     assert "| 2 | 10.0 | 22.00 | 100.0 / 24.00 | yes |" in table
     without = choose(_cfg(), pd.DataFrame(rows).drop(columns=["stock_avg_speed"]))
     assert list(without.trial) == [1, 3, 2]  # no stock figures: the objective alone
+    assert "stock_rule" not in without  # and the summary of a run without the check as before
 
 
 def test_the_recipe_config_refuses_a_multi_objective_or_a_single_seed_check():
