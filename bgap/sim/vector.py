@@ -207,12 +207,10 @@ class VectorHighway(gym.vector.VectorEnv):
         ``envs``: each env's mix from its mix stream here, its scene drawn by the compiled
         :func:`bgap.sim.core.spawn_batch` from its own stream."""
         envs = np.asarray(envs, dtype=np.int64)
-        for b in envs:
-            self.n_aggressive[b] = count_aggressive(
-                episode_mix(self.config, self._mix_rngs[b]), self.n
-            )
         states = np.empty(envs.size, dtype=np.uint64)
         for a, b in enumerate(envs):
+            mix = episode_mix(self.config, self._mix_rngs[b])
+            self.n_aggressive[b] = count_aggressive(mix, self.n)
             bit_generator = self._rngs[b].bit_generator
             if not isinstance(bit_generator, np.random.PCG64):  # the kernel's draws are PCG64's
                 raise TypeError(f"env {b}'s stream is {type(bit_generator).__name__}, not PCG64")
