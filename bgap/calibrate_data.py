@@ -224,12 +224,15 @@ def objective_value(
     return float(value)
 
 
-def reference_distances(cfg: CalibrateAppConfig, observed: Observed) -> pd.Series | None:
+def reference_distances(
+    cfg: CalibrateAppConfig, observed: Observed, table1: dict | None = None
+) -> pd.Series | None:
     """Table I's scaled distance to the target per (class, statistic), on the scenes every
-    trial simulates (None without ``calibrate.reference_penalty``)."""
+    trial simulates (None without ``calibrate.reference_penalty``); ``table1``: Table I's
+    :func:`simulate` on those scenes, when already made."""
     if cfg.calibrate.reference_penalty <= 0:
         return None
-    sim = simulate(cfg, paper_behavior(), observed)
+    sim = table1 if table1 is not None else simulate(cfg, paper_behavior(), observed)
     return compare(observed.samples, sim["samples"]).set_index(["class", "statistic"]).scaled
 
 
@@ -271,9 +274,14 @@ def study_name(cfg: CalibrateAppConfig) -> str:
 
 
 def fit(
-    cfg: CalibrateAppConfig, observed: Observed, storage, progress: bool = True
+    cfg: CalibrateAppConfig,
+    observed: Observed,
+    storage,
+    progress: bool = True,
+    reference: pd.Series | None = None,
 ) -> optuna.Study:
-    """Run (or continue) the study until it holds ``calibrate.trials`` completed trials."""
+    """Run (or continue) the study until it holds ``calibrate.trials`` completed trials
+    (``reference``: :func:`reference_distances`, for the penalty)."""
     from optuna.study import MaxTrialsCallback
     from optuna.trial import TrialState
 
@@ -309,7 +317,6 @@ def fit(
         return objective_value(cfg, observed, sim, reference)
 
     done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
-    reference = reference_distances(cfg, observed) if c.trials - done > 0 else None
     if c.trials - done > 0:
         optuna.logging.set_verbosity(optuna.logging.WARNING)
         study.optimize(
@@ -359,7 +366,12 @@ def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def sensitivity(cfg: CalibrateAppConfig, observed: Observed, study: optuna.Study) -> pd.DataFrame:
+def sensitivity(
+    cfg: CalibrateAppConfig,
+    observed: Observed,
+    study: optuna.Study,
+    reference: pd.Series | None = None,
+) -> pd.DataFrame:
     """What the data pins down: per searched parameter, Optuna's importance (fANOVA over the
     study's trials) and a one-at-a-time sweep around the best trial
     (``calibrate.sensitivity_points`` values across its bounds, the others at their best).
@@ -372,7 +384,6 @@ def sensitivity(cfg: CalibrateAppConfig, observed: Observed, study: optuna.Study
     c = cfg.calibrate
     best = dict(study.best_params)
     base = study.best_value  # the same scenes give the same value (common random numbers)
-    reference = reference_distances(cfg, observed)  # the search's, when it has one
     repeats = []
     for k in range(1, c.noise_repeats + 1):
         other = replace(cfg, calibrate=replace(c, scene_seed=c.scene_seed + 1000 * k))
@@ -429,12 +440,11 @@ def calibrate_to_data(
     observed = observe(cfg)
     if cfg.calibrate.scene_from_data:
         observed = replace(observed, vehicles_density=matched_density(cfg, observed))
-    study = fit(cfg, observed, storage, progress)
+    table1 = simulate(cfg, paper_behavior(), observed, bands=True)  # the report's and the penalty's
+    reference = reference_distances(cfg, observed, table1)
+    study = fit(cfg, observed, storage, progress, reference)
     calibrated = behavior_from(cfg.behavior, dict(study.best_params))
-    arms = {
-        "table1": simulate(cfg, paper_behavior(), observed, bands=True),
-        "calibrated": simulate(cfg, calibrated, observed, bands=True),
-    }
+    arms = {"table1": table1, "calibrated": simulate(cfg, calibrated, observed, bands=True)}
     table = comparison(observed, arms)
     missed = table[~table.calibrated_in_band & table.band.notna()]
     calibrated = replace(calibrated, name=Path(preset).stem, converged=missed.empty)
@@ -452,7 +462,8 @@ def calibrate_to_data(
         f"Written by python -m bgap.calibrate calibrate.target={cfg.calibrate.target}; "
         f"report: {report}",
     )
-    sensitive = sensitivity(cfg, observed, study) if cfg.calibrate.sensitivity_points else None
+    points = cfg.calibrate.sensitivity_points
+    sensitive = sensitivity(cfg, observed, study, reference) if points else None
     return write_report(cfg, Path(report), observed, study, arms, table, calibrated, sensitive)
 
 

@@ -209,8 +209,8 @@ def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) 
     ],
 )
 def test_compiled_scene_draw_is_the_numpy_draw(overrides, keys):
-    """core.spawn (numba's np.random.Generator) draws the numpy version's scenes from the same
-    streams bit for bit: every field of every vehicle, and the stream left where numpy
+    """core.spawn (numpy's Generator algorithms on each env's PCG64 stream, through its ctypes
+    interface) draws the numpy version's scenes from the same streams bit for bit: every field of every vehicle, and the stream left where numpy
     leaves it, so the next reset's scene is the same too."""
     config = {**env_config(make_cfg(*overrides)), **keys}
     venv, ref = VectorHighway(config, 1), VectorHighway(config, 1)
