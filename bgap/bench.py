@@ -207,17 +207,19 @@ def _envpool_steps_per_second(
 def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     """Policy steps/s, random ego actions, dense and sparse, of highway-env (one env, the
     reference), bgap's vectorised backend (``num_envs`` envs on ``threads`` threads) and
-    EnvPool's C++ Highway-v0 at the same settings (when installed)."""
+    EnvPool's C++ Highway-v0 at the same settings (when installed); then the vector backend
+    in the opt-in fast mode (:func:`bgap.scenario.fast_mode`, 10 Hz instead of 15)."""
     import numba
 
     from bgap.config import compose, validate
     from bgap.envs import make_env
-    from bgap.scenario import env_config
+    from bgap.scenario import env_config, fast_mode
 
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     print(f"{num_envs} envs, {threads} threads, random ego actions, policy steps/s")
     head = f"{'scenario':<9}{'highway-env':>13}{'vector':>11}{'EnvPool':>11}"
-    print(f"{head}{'vector/highway':>16}{'vector/EnvPool':>16}")
+    fast_head = f"{'fast':>9}{'fast/highway':>14}{'fast/EnvPool':>14}"
+    print(f"{head}{'vector/highway':>16}{'vector/EnvPool':>16}{fast_head}")
     configs: dict[str, dict] = {}
     for density in ("dense", "sparse"):
         cfg = validate(compose("simulate", [f"env={density}"]))
@@ -227,11 +229,17 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
         pool = _envpool_steps_per_second(
             cfg.env.vehicles_count, cfg.env.observed_vehicles, num_envs, threads, seconds
         )
+        fast = _vector_steps_per_second(fast_mode(config), num_envs, seconds)
         pool_s = f"{pool:>11.0f}" if pool else f"{'n/a':>11}"
         ratio = f"{vec / pool:>16.2f}" if pool else f"{'n/a':>16}"
-        print(f"{density:<9}{ref:>13.1f}{vec:>11.0f}{pool_s}{vec / ref:>16.0f}{ratio}")
+        fast_ratio = f"{fast / pool:>14.2f}" if pool else f"{'n/a':>14}"
+        print(
+            f"{density:<9}{ref:>13.1f}{vec:>11.0f}{pool_s}{vec / ref:>16.0f}{ratio}"
+            f"{fast:>9.0f}{fast / ref:>14.0f}{fast_ratio}"
+        )
         configs[density] = config
     print("EnvPool has no behaviour classes (its traffic is highway-env's stock IDM).")
+    print("fast: the vector backend at 10 Hz (bgap.scenario.fast_mode), the others at 15 Hz.")
     _print_phase_split(configs, num_envs, seconds)
 
 

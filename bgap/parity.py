@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> None:
     from tqdm.auto import tqdm
 
     from bgap.config import compose, validate
-    from bgap.scenario import env_config
+    from bgap.scenario import env_config, fast_mode
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="dense")
@@ -155,6 +155,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="results/parity")
     parser.add_argument("--backends", default="vector,highway")
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="the vector backend in the fast mode (bgap.scenario.fast_mode: 10 Hz); with "
+        "--backends vector --reuse it is compared with the stored highway-env episodes",
+    )
     parser.add_argument(
         "--reuse",
         action="store_true",
@@ -178,7 +184,8 @@ def main(argv: list[str] | None = None) -> None:
         for backend in ("vector", "highway"):
             if backend not in backends:
                 continue
-            df = run(config, seeds, backend)
+            fast = args.fast and backend == "vector"
+            df = run(fast_mode(config) if fast else config, seeds, backend)
             df["mix"], df["backend"] = mix, backend
             frames.append(df)
             pd.concat(frames).to_csv(out / "episodes.csv", index=False)

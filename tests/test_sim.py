@@ -2,18 +2,23 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.behaviors import BehaviorVehicle
 from bgap.envs import make_env
-from bgap.scenario import env_config
+from bgap.scenario import FAST_SIMULATION_FREQUENCY, env_config, fast_mode
 from bgap.sim import core
 from bgap.sim.vector import VectorHighway, scene_from_highway
 from bgap.vocab import IDLE
 from tests.conftest import make_cfg
+
+PARITY = Path(__file__).resolve().parent.parent / "results/parity"
 
 
 def _twin(*overrides: str, seed: int = 0):
@@ -210,8 +215,9 @@ def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) 
 )
 def test_compiled_scene_draw_is_the_numpy_draw(overrides, keys):
     """core.spawn (numpy's Generator algorithms on each env's PCG64 stream, through its ctypes
-    interface) draws the numpy version's scenes from the same streams bit for bit: every field of every vehicle, and the stream left where numpy
-    leaves it, so the next reset's scene is the same too."""
+    interface) draws the numpy version's scenes from the same streams bit for bit: every
+    field of every vehicle, and the stream left where numpy leaves it, so the next reset's
+    scene is the same too."""
     config = {**env_config(make_cfg(*overrides)), **keys}
     venv, ref = VectorHighway(config, 1), VectorHighway(config, 1)
     for seed in range(40):
@@ -326,3 +332,34 @@ def test_the_benchmarks_phase_by_phase_step_is_the_kernels_step():
         for name in ("f", "g", "p", "steps"):
             np.testing.assert_array_equal(getattr(cut, name), getattr(whole, name))
     assert ended >= 12 and set(clock) == set(PHASES) and all(v > 0 for v in clock.values())
+
+
+def test_the_fast_mode_passes_the_parity_study_and_5_hz_does_not():
+    """The fast mode against the parity stage's highway-env episodes (committed, 15 Hz): the
+    same seeds, mixes and duration on the vector backend, every rate inside its interval.
+    The same comparison at 5 Hz must fail somewhere, or this check could not tell."""
+    from bgap import parity
+
+    stored = pd.read_csv(PARITY / "episodes.csv")
+    highway = stored[stored.backend == "highway"]
+    seeds = sorted(highway.seed.unique())
+    assert len(seeds) >= 100 and sorted(highway.mix.unique()) == [0.0, 0.5, 1.0]
+    duration = float(
+        yaml.safe_load((PARITY.parents[1] / "params.yaml").read_text())["parity"]["duration"]
+    )
+
+    def agreeing(frequency: int) -> pd.Series:
+        frames = [highway]
+        for mix in (0.0, 0.5, 1.0):
+            config = env_config(make_cfg("env=dense", f"mix={mix}", f"env.duration={duration}"))
+            config = {**config, "simulation_frequency": frequency}
+            df = parity.run(config, seeds, "vector")
+            df["mix"], df["backend"] = mix, "vector"
+            frames.append(df)
+        table = parity.compare(pd.concat(frames))
+        return table[table.backend == "vector"].set_index(["mix", "metric"]).overlap
+
+    assert fast_mode({"simulation_frequency": 15}) == {"simulation_frequency": 10}
+    fast = agreeing(FAST_SIMULATION_FREQUENCY)
+    assert len(fast) == 11 and fast.all(), fast[~fast]
+    assert not agreeing(5).all()
