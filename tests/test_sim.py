@@ -12,7 +12,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.behaviors import BehaviorVehicle
 from bgap.envs import make_env
-from bgap.scenario import FAST_SIMULATION_FREQUENCY, env_config, fast_mode
+from bgap.scenario import env_config, fast_mode
 from bgap.sim import core
 from bgap.sim.vector import VectorHighway, scene_from_highway
 from bgap.vocab import IDLE
@@ -348,18 +348,16 @@ def test_the_fast_mode_passes_the_parity_study_and_5_hz_does_not():
         yaml.safe_load((PARITY.parents[1] / "params.yaml").read_text())["parity"]["duration"]
     )
 
-    def agreeing(frequency: int) -> pd.Series:
+    def agreeing(mode) -> pd.Series:
         frames = [highway]
         for mix in (0.0, 0.5, 1.0):
             config = env_config(make_cfg("env=dense", f"mix={mix}", f"env.duration={duration}"))
-            config = {**config, "simulation_frequency": frequency}
-            df = parity.run(config, seeds, "vector")
+            df = parity.run(mode(config), seeds, "vector")
             df["mix"], df["backend"] = mix, "vector"
             frames.append(df)
         table = parity.compare(pd.concat(frames))
         return table[table.backend == "vector"].set_index(["mix", "metric"]).overlap
 
-    assert fast_mode({"simulation_frequency": 15}) == {"simulation_frequency": 10}
-    fast = agreeing(FAST_SIMULATION_FREQUENCY)
+    fast = agreeing(fast_mode)
     assert len(fast) == 11 and fast.all(), fast[~fast]
-    assert not agreeing(5).all()
+    assert not agreeing(lambda config: {**config, "simulation_frequency": 5}).all()
