@@ -168,6 +168,11 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     out = Path(args.out)
+    if args.fast and out.resolve() == Path("results/parity").resolve():
+        from bgap.cli import fail
+
+        # its rows are labelled "vector": they must not replace the parity stage's results
+        fail("bgap.parity", f"--fast needs its own --out (got {args.out}): give a copy of it")
     out.mkdir(parents=True, exist_ok=True)
     frames = []
     backends = args.backends.split(",")

@@ -135,6 +135,8 @@ CASES = [
     ("cmetric", ["input={tmp}/both_ids.csv"], r"columns \['vehicle_id'\] are given twice"),
     ("cmetric", ["input={tmp}/good.csv", "fps=0"], r"fps=0\.0 is invalid"),
     ("cmetric", ["input={tmp}/good.csv", "cmetric.window=0"], r"cmetric\.window=0\.0"),
+    # --- parity: the fast mode's rows would replace the parity stage's own
+    ("parity", ["--fast"], r"--fast needs its own --out \(got results/parity\)"),
 ]
 
 MODULES = {
@@ -145,6 +147,7 @@ MODULES = {
     "calibrate": "bgap.calibrate",
     "sweep": "bgap.sweep",
     "cmetric": "bgap.cmetric.__main__",
+    "parity": "bgap.parity",
 }
 
 
