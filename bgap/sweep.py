@@ -153,6 +153,7 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
         f"agent={cfg.agent.name}",
         f"backend={cfg.backend}",
         f"seed={cfg.seed}",
+        f"policy={cfg.policy}",  # policy=default: every trial trains in stock traffic
         f"mix={cfg.mix}",
         f"mix_sampling={cfg.mix_sampling}",
         f"profile={cfg.profile.name}",

@@ -71,6 +71,27 @@ def test_resumed_sweep_continues_its_trial_count(tmp_path):
     assert load_preset(RewardConfig, tmp_path / "tuned.yaml").converged
 
 
+def test_sweep_of_the_default_policy_trains_and_scores_it_in_stock_traffic(tmp_path):
+    """``policy=default`` reaches every trial's training: stock traffic, and the trial's idle
+    figures are idle's on the stock validation episodes (idle crashes far more there than
+    in the paper's traffic, so the two cannot be confused)."""
+    import yaml
+
+    from bgap.rollout import baseline
+    from bgap.sweep import _validation
+    from bgap.train import training_config
+
+    cfg = _cfg(tmp_path, "trials=1", "mode=single", "env=dense", "policy=default")
+    study = sweep(cfg, progress=False)
+    trial = study.trials[0]
+    run = yaml.safe_load((Path(trial.user_attrs["run_dir"]) / "config.yaml").read_text())
+    assert run["policy"] == "default" and run["behavior"]["name"] == "stock"
+    stock = training_config(cfg, "default")
+    crash, speed = _validation(baseline("idle"), stock, cfg.sweep_eval_episodes)
+    assert trial.user_attrs["idle_collision_pct"] == crash
+    assert trial.user_attrs["idle_avg_speed"] == pytest.approx(speed)
+
+
 def test_bad_search_spaces_fail_before_training(tmp_path, monkeypatch):
     import bgap.sweep as sw
 
