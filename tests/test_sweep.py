@@ -79,15 +79,14 @@ def test_sweep_of_the_default_policy_trains_and_scores_it_in_stock_traffic(tmp_p
 
     from bgap.rollout import baseline
     from bgap.sweep import _validation
-    from bgap.train import training_config
 
     cfg = _cfg(tmp_path, "trials=1", "mode=single", "env=dense", "policy=default")
     study = sweep(cfg, progress=False)
     trial = study.trials[0]
     run = yaml.safe_load((Path(trial.user_attrs["run_dir"]) / "config.yaml").read_text())
     assert run["policy"] == "default" and run["behavior"]["name"] == "stock"
-    stock = training_config(cfg, "default")
-    crash, speed = _validation(baseline("idle"), stock, cfg.sweep_eval_episodes)
+    # _validation swaps in the training traffic of cfg.policy itself (train.training_config)
+    crash, speed = _validation(baseline("idle"), cfg, cfg.sweep_eval_episodes)
     assert trial.user_attrs["idle_collision_pct"] == crash
     assert trial.user_attrs["idle_avg_speed"] == pytest.approx(speed)
 
