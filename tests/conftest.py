@@ -16,7 +16,9 @@ if "PYTEST_XDIST_WORKER" in os.environ:
 import numpy as np  # noqa: E402
 import pytest
 
-from bgap.config import SimulateConfig, compose, validate
+from bgap.common.config import validate
+from bgap.datasets.config import SimulateConfig
+from tests.configs import compose
 
 
 def pytest_sessionstart(session) -> None:
@@ -66,7 +68,7 @@ def sparse_mixed_recording():
     """8 seeded 60 s sparse episodes, paper behaviours, half aggressive, idle ego (the class
     differences asserted on it are many standard errors wide). On the vector backend, which
     tests/test_sim.py holds to highway-env step for step (14 s less on highway-env)."""
-    from bgap.simulate import simulate
+    from bgap.datasets.simulate import simulate
 
     cfg = make_cfg("env=sparse", "mix=0.5", "behavior=paper", "seed=100", "backend=vector")
     return simulate(cfg, episodes=8, progress=False)
@@ -76,9 +78,9 @@ def warm_compiled_kernels() -> None:
     """Compile (or load from numba's cache) the simulator's and CMetric's kernels in this
     checkout, so that a copy of the package made afterwards with its ``__pycache__`` (same
     sources, same modification times) loads them instead of compiling them again."""
+    from bgap.agents.policies import rollout
     from bgap.cmetric import score_trajectories
-    from bgap.rollout import rollout
-    from bgap.scenario import env_config
+    from bgap.traffic.scenario import env_config
 
     cfg = make_cfg("env=sparse", "env.duration=2")
     table = rollout(env_config(cfg), "random", [0], "vector", record=True).trajectories

@@ -136,7 +136,11 @@ CASES = [
     ("cmetric", ["input={tmp}/good.csv", "fps=0"], r"fps=0\.0 is invalid"),
     ("cmetric", ["input={tmp}/good.csv", "cmetric.window=0"], r"cmetric\.window=0\.0"),
     # --- parity: the fast mode's rows would replace the parity stage's own
-    ("parity", ["--fast"], r"--fast needs its own --out \(got results/parity\)"),
+    (
+        "parity",
+        ["--fast", "--out", "results/parity"],
+        r"--fast needs its own --out \(got results/parity\)",
+    ),
 ]
 
 MODULES = {
@@ -203,8 +207,9 @@ def test_at_least_forty_cases():
 
 
 def test_a_model_of_another_density_is_a_clear_error(tmp_path, monkeypatch, capsys):
-    from bgap.config import compose, validate
-    from bgap.train import train
+    from bgap.common.config import validate
+    from bgap.experiments.train import train
+    from tests.configs import compose
 
     monkeypatch.chdir(tmp_path)
     cfg = validate(compose("train", ["env=sparse", "profile=tiny", f"root={tmp_path}"]))
@@ -240,7 +245,7 @@ def test_ctrl_c_says_what_was_kept_and_how_to_continue(tmp_path, monkeypatch, ca
     status, err = _command("train", ["profile=tiny", "run_dir=run"], monkeypatch, capsys)
     assert status == 2 and "holds an unfinished training: resume=true" in err
 
-    import bgap.calibrate as cal
+    import bgap.calibration.calibrate as cal
 
     def stop(*args, **kwargs):
         raise KeyboardInterrupt
@@ -287,9 +292,10 @@ def test_a_users_calibration_and_sweep_write_only_under_their_root(tmp_path, mon
 def test_settings_that_differ_never_share_a_folder_or_a_study():
     from dataclasses import replace
 
-    from bgap.config import compose, validate
-    from bgap.run import results_dir
-    from bgap.sweep import study_name
+    from bgap.common.config import validate
+    from bgap.experiments.run import results_dir
+    from bgap.experiments.sweep import study_name
+    from tests.configs import compose
 
     run = validate(compose("run", []))
     other_reward = validate(compose("run", ["reward=authors"]))
@@ -309,8 +315,9 @@ def test_a_training_killed_at_any_moment_resumes_to_the_same_parameters(tmp_path
     import time
 
     from bgap.agents.dqn import DQN
-    from bgap.config import compose, validate
-    from bgap.train import train
+    from bgap.common.config import validate
+    from bgap.experiments.train import train
+    from tests.configs import compose
 
     overrides = ["profile=tiny", "profile.checkpoint_every=40", "mix_sampling=paper"]
     whole = train(validate(compose("train", [*overrides, f"run_dir={tmp_path}/whole"])), False)

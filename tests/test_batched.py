@@ -177,10 +177,11 @@ def test_batched_training_writes_sb3_run_folders_and_resumes_a_kill_exactly(tmp_
     """Two members (both policies: two traffic groups) in one learner: each gets bgap.train's run
     folder with a model.zip that SB3's DQN.load reads and bgap.evaluate plays; kill -9 in the
     middle and a rerun with resume=true ends every member where an uninterrupted run does."""
-    from bgap.config import compose, validate
-    from bgap.errors import ConfigError
-    from bgap.evaluate import evaluate
-    from bgap.train import member_configs, train_batched
+    from bgap.common.config import validate
+    from bgap.common.errors import ConfigError
+    from bgap.experiments.evaluate import evaluate
+    from bgap.experiments.train import member_configs, train_batched
+    from tests.configs import compose
 
     def configs(name: str, *more: str):
         return member_configs(validate(compose("train", [*_overrides(tmp_path, name), *more])))
@@ -238,9 +239,10 @@ def test_batched_training_writes_sb3_run_folders_and_resumes_a_kill_exactly(tmp_
 
 
 def test_bad_batches_are_clear_errors():
-    from bgap.config import compose, validate
-    from bgap.errors import ConfigError
-    from bgap.train import train_batched
+    from bgap.common.config import validate
+    from bgap.common.errors import ConfigError
+    from bgap.experiments.train import train_batched
+    from tests.configs import compose
 
     with pytest.raises(ConfigError, match="at least one"):
         _learner(AgentConfig(), [])
@@ -261,8 +263,9 @@ def test_a_whole_training_on_sb3s_random_streams_is_sb3s_training(tmp_path):
     ~1e-7 and, some hundred updates in, one draw picks another index; README.)"""
     import pickle
 
-    from bgap.config import compose, validate
-    from bgap.train import train, train_batched
+    from bgap.common.config import validate
+    from bgap.experiments.train import train, train_batched
+    from tests.configs import compose
 
     overrides = ["profile=quick", "profile.train_steps=800", "profile.eval_every_episodes=0",
                  "env=sparse", "seed=3", "agent.replay=uniform"]  # fmt: skip

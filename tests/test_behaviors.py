@@ -7,8 +7,8 @@ import highway_env  # noqa: F401  (registers highway-v0)
 import numpy as np
 import pytest
 
-from bgap.behaviors import BehaviorVehicle
 from bgap.envs import make_env
+from bgap.traffic.behaviors import BehaviorVehicle
 from tests.conftest import lane_changes, make_cfg
 
 

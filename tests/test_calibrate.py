@@ -8,11 +8,13 @@ import pytest
 from hydra.errors import ConfigCompositionException
 from omegaconf.errors import ConfigKeyError
 
-from bgap import calibrate as cal
-from bgap.behaviors import BehaviorConfig, DriverParams
-from bgap.config import CalibrateAppConfig, compose, validate
-from bgap.errors import ConfigError
-from bgap.presets import load_preset, preset_path
+from bgap.calibration import calibrate as cal
+from bgap.calibration.config import CalibrateAppConfig
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError
+from bgap.common.presets import load_preset, preset_path
+from bgap.traffic.behaviors import BehaviorConfig, DriverParams
+from tests.configs import compose
 
 PAPER = cal.PAPER_TABLE
 

@@ -9,15 +9,16 @@ import pandas as pd
 import pytest
 
 from bgap.cmetric.io import TrajectoryError
-from bgap.config import compose, validate
+from bgap.common.config import validate
+from tests.configs import compose
 
 
 @pytest.fixture(scope="module")
 def target(tmp_path_factory):
     """bgap's own dense traffic under Table I (3 scenes of 12 s, seeds other than the
     calibration's), relabelled as a user's data would be ("AGG"/"normal")."""
-    from bgap.rollout import rollout
-    from bgap.scenario import env_config
+    from bgap.agents.policies import rollout
+    from bgap.traffic.scenario import env_config
     from tests.conftest import make_cfg
 
     cfg = make_cfg("env=dense", "mix=0.5", "env.duration=12")
@@ -41,7 +42,7 @@ def _cfg(tmp_path, target, *overrides):
 
 
 def test_defective_targets_fail_before_any_simulation(tmp_path, target, monkeypatch):
-    import bgap.calibrate_data as cd
+    import bgap.calibration.data as cd
 
     def no_simulation(*args, **kwargs):
         raise AssertionError("simulated before the target was checked")
@@ -67,10 +68,10 @@ def test_defective_targets_fail_before_any_simulation(tmp_path, target, monkeypa
 def test_a_short_calibration_writes_its_report_and_resumes(tmp_path, target):
     import optuna
 
-    from bgap.behaviors import BehaviorConfig
-    from bgap.calibrate import preset_file, report_dir, storage_url
-    from bgap.calibrate_data import calibrate_to_data, study_name
-    from bgap.presets import load_preset
+    from bgap.calibration.calibrate import preset_file, report_dir, storage_url
+    from bgap.calibration.data import calibrate_to_data, study_name
+    from bgap.common.presets import load_preset
+    from bgap.traffic.behaviors import BehaviorConfig
 
     # v0 and T only (8 searched parameters fewer), and a small sensitivity report
     small = [
@@ -124,7 +125,7 @@ def test_the_reference_penalty_charges_each_statistic_matched_worse_than_table1(
 
     import numpy as np
 
-    from bgap.calibrate_data import objective_value
+    from bgap.calibration.data import objective_value
 
     observed = SimpleNamespace(
         samples={"aggressive": {"speed": np.array([0.0, 2.0]), "headway": np.array([0.0, 2.0])}}
@@ -148,9 +149,9 @@ def test_the_reference_penalty_charges_each_statistic_matched_worse_than_table1(
 def test_the_target_density_is_matched(tmp_path):
     """Traffic spawned at vehicles_density 0.5 (other seeds) is read back as 0.5: bgap's
     spawning gap scales as 1 / vehicles_density."""
-    from bgap.calibrate_data import matched_density, observe
-    from bgap.rollout import rollout
-    from bgap.scenario import env_config
+    from bgap.agents.policies import rollout
+    from bgap.calibration.data import matched_density, observe
+    from bgap.traffic.scenario import env_config
     from tests.conftest import make_cfg
 
     sparse_ish = make_cfg("env=dense", "mix=0.5", "env.duration=2", "env.vehicles_density=0.5")
@@ -170,12 +171,12 @@ def test_known_parameters_are_recovered(tmp_path):
     and the calibrated traffic's statistics lie within their noise bands."""
     from dataclasses import replace
 
-    from bgap.behaviors import DriverParams, paper_behavior
-    from bgap.calibrate import preset_file, report_dir, storage_url
-    from bgap.calibrate_data import calibrate_to_data
-    from bgap.presets import write_preset
-    from bgap.rollout import rollout
-    from bgap.scenario import env_config
+    from bgap.agents.policies import rollout
+    from bgap.calibration.calibrate import preset_file, report_dir, storage_url
+    from bgap.calibration.data import calibrate_to_data
+    from bgap.common.presets import write_preset
+    from bgap.traffic.behaviors import DriverParams, paper_behavior
+    from bgap.traffic.scenario import env_config
     from tests.conftest import make_cfg
 
     paper = paper_behavior()

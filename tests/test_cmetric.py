@@ -222,7 +222,7 @@ def test_the_truth_check_sees_a_setting_that_ignores_weaving():
 
 def robust(name: str = "robust") -> CMetricConfig:
     """A shipped preset (``cmetric=robust`` by default), read from its YAML file."""
-    from bgap.config import compose
+    from tests.configs import compose
 
     return compose("cmetric_app", [f"cmetric={name}", "input=x.csv"]).cmetric
 
@@ -362,7 +362,7 @@ def test_command_writes_scores_and_plot(tmp_path, monkeypatch, capsys):
 @pytest.fixture(scope="module")
 def simulated():
     """30 episodes of each density at mix 0.5 (paper preset, seeds 500-529), recorded once."""
-    from bgap.simulate import simulate
+    from bgap.datasets.simulate import simulate
     from tests.conftest import make_cfg
 
     def table(density):
@@ -410,10 +410,12 @@ def test_robust_and_tuned_presets_separate_the_classes(simulated, preset, densit
 
 
 def test_cmetric_stands_alone_without_simulator_learner_or_hydra():
-    """Scoring any trajectory file needs neither a simulator, a learner nor Hydra."""
+    """Scoring any trajectory file needs neither a simulator, a learner nor Hydra (``import
+    bgap`` registers the environment with gymnasium, as ``import highway_env`` does, and
+    imports nothing else: tests/test_layout.py)."""
     code = (
         "import sys, bgap.cmetric, bgap.cmetric.params;"
-        "heavy = [m for m in ('hydra', 'highway_env', 'torch', 'stable_baselines3', 'gymnasium')"
+        "heavy = [m for m in ('hydra', 'highway_env', 'torch', 'stable_baselines3', 'bgap.envs')"
         " if m in sys.modules]; print(heavy); sys.exit(bool(heavy))"
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)

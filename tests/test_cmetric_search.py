@@ -11,8 +11,9 @@ import pytest
 from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.cmetric.search.params import CMetricSearchConfig, SearchDataset
 from bgap.cmetric.search.study import crop, load_parts, objective_value
-from bgap.config import compose, validate
-from bgap.errors import ConfigError
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError
+from tests.configs import compose
 from tests.conftest import make_cfg
 
 
@@ -20,7 +21,7 @@ from tests.conftest import make_cfg
 def data(tmp_path_factory) -> Path:
     """Two labelled tables as bgap.simulate writes them: sparse traffic at mixes 0.5 and
     0.8 (8 episodes of 30 s each; dense traffic would cost the suite time, not coverage)."""
-    from bgap.simulate import simulate
+    from bgap.datasets.simulate import simulate
 
     root = tmp_path_factory.mktemp("cmetric_data")
     for name, mix, episodes in (("mix50", 0.5, 8), ("mix80", 0.8, 8)):

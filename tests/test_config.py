@@ -6,9 +6,10 @@ import pytest
 from hydra.errors import ConfigCompositionException, MissingConfigException
 from omegaconf.errors import ValidationError
 
-from bgap.config import compose, validate
-from bgap.errors import ConfigError
-from bgap.scenario import env_config
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError
+from bgap.traffic.scenario import env_config
+from tests.configs import compose
 from tests.conftest import make_cfg
 
 

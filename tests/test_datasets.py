@@ -11,7 +11,7 @@ import pytest
 
 from bgap.cmetric.io import load_trajectories
 from bgap.datasets.sumo import SumoConfig, record
-from bgap.recorder import COLUMNS
+from bgap.sim.recorder import COLUMNS
 
 SMALL = SumoConfig(lanes=3, length=1500.0, flow=0.5, warmup=45.0, duration=6.0, ego_position=600)
 
@@ -101,7 +101,7 @@ def test_tuned_cmetric_tells_sumos_driver_types_apart(car_following, flow, floor
     from bgap.cmetric import score_trajectories
     from bgap.cmetric.params import CMetricConfig
     from bgap.cmetric.score import label_auc
-    from bgap.presets import load_preset, preset_path
+    from bgap.common.presets import load_preset, preset_path
 
     tuned = load_preset(CMetricConfig, preset_path("cmetric", "tuned"))
     table = record(SumoConfig(car_following=car_following, flow=flow), episodes=10, seed=100)

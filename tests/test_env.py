@@ -9,8 +9,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from highway_env.vehicle.kinematics import Vehicle
 
+from bgap.datasets.simulate import simulate
 from bgap.envs import make_env
-from bgap.simulate import simulate
 from tests.conftest import make_cfg
 
 LANE_LEFT, IDLE, LANE_RIGHT = 0, 1, 2

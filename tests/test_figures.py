@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bgap.figures import (
+from bgap.analysis.figures import (
     ablation_table,
     cell_stats,
     claims,
@@ -14,7 +14,7 @@ from bgap.figures import (
     own_traffic,
     parse_policies,
 )
-from bgap.vocab import PAPER_MIXES
+from bgap.common.vocab import PAPER_MIXES
 
 
 def _study(rate, seeds=6, episodes=200, density="sparse", radii=(30.0, 180.0), speed=25.0):

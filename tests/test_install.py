@@ -65,7 +65,7 @@ def installed(tmp_path_factory) -> tuple[Path, dict]:
     (wheel,) = (tmp_path / "dist").glob("bgap-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     assert "bgap/conf/run.yaml" in names and "bgap/conf/behavior/paper.yaml" in names
-    assert "bgap/sweeps/reward.yaml" in names
+    assert "bgap/experiments/sweeps/reward.yaml" in names
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     _reuse_compiled_kernels(site)

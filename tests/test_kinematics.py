@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from bgap.calibration.kinematics import class_samples, compare, driver_class, scene, total_distance
 from bgap.cmetric.io import TrajectoryError
-from bgap.kinematics import class_samples, compare, driver_class, scene, total_distance
 
 FPS = 5.0
 T = np.arange(61) / FPS  # 12 s

@@ -52,8 +52,8 @@ def _colour_pixels(path: Path, colour: str) -> int:
 def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     import json
 
-    from bgap.behaviors import BehaviorConfig
-    from bgap.presets import load_preset
+    from bgap.common.presets import load_preset
+    from bgap.traffic.behaviors import BehaviorConfig
 
     for name in (
         "outputs/pipeline/runs/main/sparse/sparse-behavior_rich-s0/best_model.zip",

@@ -32,7 +32,7 @@ def pipeline(tmp_path_factory) -> Path:
 
 def test_cmetric_search_scores_every_table_and_writes_a_valid_preset(pipeline):
     from bgap.cmetric.params import CMetricConfig
-    from bgap.presets import load_preset
+    from bgap.common.presets import load_preset
 
     # every bgap table in both parts, SUMO's in validation only
     auc = pd.read_csv(pipeline / "results/cmetric/auc.csv")

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from bgap.cmetric.io import TrajectoryError, load_trajectories
-from bgap.recorder import COLUMNS
+from bgap.sim.recorder import COLUMNS
 
 FPS = 25
 

@@ -5,9 +5,10 @@ from __future__ import annotations
 import pandas as pd
 import pytest
 
-from bgap.config import compose, validate
-from bgap.recipe import choose
-from bgap.sweep import objective
+from bgap.common.config import validate
+from bgap.experiments.recipe import choose
+from bgap.experiments.sweep import objective
+from tests.configs import compose
 
 
 def _cfg(*overrides: str):
@@ -50,7 +51,7 @@ def test_with_the_stock_check_a_candidate_whose_default_policy_crawls_ranks_last
     """Trial 1 is best in behaviour-rich traffic, but its default policy drives 19.5 m/s in
     stock traffic against idle's 24 (floor 21.6); trial 2's drives 22 m/s at 10%: trial 2
     is chosen. Trial 3 meets the speed but crashes in 60% (bound 50%)."""
-    from bgap.recipe import markdown
+    from bgap.experiments.recipe import markdown
 
     cfg = _cfg("stock_check=true")
     rows = []
@@ -75,7 +76,7 @@ def test_with_the_stock_check_a_candidate_whose_default_policy_crawls_ranks_last
 
 
 def test_the_recipe_config_refuses_a_multi_objective_or_a_single_seed_check():
-    from bgap.errors import ConfigError
+    from bgap.common.errors import ConfigError
 
     with pytest.raises(ConfigError, match="mode"):
         _cfg("mode=multi")
@@ -85,7 +86,7 @@ def test_the_recipe_config_refuses_a_multi_objective_or_a_single_seed_check():
 
 @pytest.mark.slow
 def test_a_tiny_recipe_writes_its_presets_and_tables(tmp_path):
-    from bgap.recipe import recipe
+    from bgap.experiments.recipe import recipe
 
     cfg = _cfg(
         "profile=tiny", "profile.eval_every_episodes=3", "trials=2", "candidates=2",

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bgap.config import compose, validate
+from bgap.common.config import validate
+from tests.configs import compose
 
 EXPECTED = json.loads((Path(__file__).parent / "data" / "regression.json").read_text())
 KEYS = [
@@ -62,7 +63,7 @@ def _same_summary(expected: dict, got: dict) -> None:
 
 
 def test_evaluation_grid_on_the_vector_backend_is_unchanged():
-    from bgap.evaluate import Cell, evaluate
+    from bgap.experiments.evaluate import Cell, evaluate
 
     cfg = validate(compose("train", [*PAPER, "env=sparse", "workers=1", "backend=vector",
                                      "eval_seed=500"]))  # fmt: skip
@@ -73,7 +74,7 @@ def test_evaluation_grid_on_the_vector_backend_is_unchanged():
 
 
 def test_evaluation_on_highway_env_is_unchanged():
-    from bgap.evaluate import Cell, evaluate
+    from bgap.experiments.evaluate import Cell, evaluate
 
     overrides = [*PAPER, "env=sparse", "env.duration=15", "workers=1", "backend=highway",
                  "eval_seed=500"]  # fmt: skip
@@ -92,14 +93,14 @@ def test_evaluation_on_highway_env_is_unchanged():
     ],
 )
 def test_simulated_datasets_are_unchanged(case, overrides, episodes):
-    from bgap.simulate import simulate
+    from bgap.datasets.simulate import simulate
 
     cfg = validate(compose("simulate", ["env=sparse", "mix=0.6", "seed=7", *overrides]))
     _same_summary(EXPECTED[case], _summary(simulate(cfg, episodes=episodes, progress=False)))
 
 
 def test_a_calibration_trial_scores_the_same():
-    from bgap import calibrate as cal
+    from bgap.calibration import calibrate as cal
 
     cfg = validate(compose("calibrate", ["calibrate.episodes=2", "calibrate.duration=20"]))
     stats = cal.scene_scores(cfg, cfg.behavior)
@@ -114,8 +115,8 @@ def test_a_calibration_trial_scores_the_same():
 
 def test_a_tiny_training_learns_the_same_parameters(tmp_path):
     from bgap.agents.dqn import DQN
-    from bgap.evaluate import Cell, evaluate
-    from bgap.train import train
+    from bgap.experiments.evaluate import Cell, evaluate
+    from bgap.experiments.train import train
 
     overrides = [*PAPER, "env=sparse", "profile=tiny", "backend=vector", f"root={tmp_path}",
                  "workers=1"]  # fmt: skip

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from bgap.agents.policies import rollout
 from bgap.agents.rule_based import RuleBasedEgo, idm
-from bgap.rollout import rollout
-from bgap.scenario import env_config
-from bgap.vocab import FASTER, IDLE, LANE_LEFT, LANE_RIGHT, SLOWER
+from bgap.common.vocab import FASTER, IDLE, LANE_LEFT, LANE_RIGHT, SLOWER
+from bgap.traffic.scenario import env_config
 from tests.conftest import make_cfg
 from tests.test_diagnostics import _scene
 

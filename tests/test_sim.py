@@ -10,12 +10,12 @@ import pytest
 import yaml
 from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.behaviors import BehaviorVehicle
+from bgap.common.vocab import IDLE
 from bgap.envs import make_env
-from bgap.scenario import env_config, fast_mode
 from bgap.sim import core
 from bgap.sim.vector import VectorHighway, scene_from_highway
-from bgap.vocab import IDLE
+from bgap.traffic.behaviors import BehaviorVehicle
+from bgap.traffic.scenario import env_config, fast_mode
 from tests.conftest import make_cfg
 
 PARITY = Path(__file__).resolve().parent.parent / "results/parity"
@@ -155,8 +155,8 @@ def test_initial_scenes_have_highway_envs_distribution():
 def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) -> None:
     """The scene draw as numpy code (VectorHighway._spawn before it was compiled), the
     reference core.spawn must reproduce draw for draw."""
-    from bgap.behaviors import DRIVER_ATTRIBUTES, is_stock
     from bgap.sim.vector import _COLUMNS, IDM_DEFAULTS, _column_value
+    from bgap.traffic.behaviors import DRIVER_ATTRIBUTES, is_stock
 
     cfg, lanes, n = venv.config, venv.lanes, venv.n
     f, g, p = venv.f[b], venv.g[b], venv.p[b]
@@ -257,7 +257,7 @@ def test_bad_input_is_rejected_clearly():
 
 def test_simulate_vector_writes_the_recorder_schema():
     from bgap.cmetric.io import load_trajectories
-    from bgap.simulate import simulate
+    from bgap.datasets.simulate import simulate
 
     ref = simulate(make_cfg("env=sparse", "env.duration=4"), episodes=1, progress=False)
     vec = simulate(
@@ -338,7 +338,7 @@ def test_the_fast_mode_passes_the_parity_study_and_5_hz_does_not():
     """The fast mode against the parity stage's highway-env episodes (committed, 15 Hz): the
     same seeds, mixes and duration on the vector backend, every rate inside its interval.
     The same comparison at 5 Hz must fail somewhere, or this check could not tell."""
-    from bgap import parity
+    from bgap.experiments import parity
 
     stored = pd.read_csv(PARITY / "episodes.csv")
     highway = stored[stored.backend == "highway"]

@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pandas as pd
 
-from bgap.recorder import COLUMNS
-from bgap.simulate import simulate
+from bgap.datasets.simulate import simulate
+from bgap.sim.recorder import COLUMNS
 from tests.conftest import make_cfg
 
 
@@ -70,8 +70,8 @@ def test_the_first_picture_shows_every_vehicle_of_a_dense_scene():
     (highway-env's own view shows about 4 of 40)."""
     from scipy import ndimage
 
-    from bgap.simulate import record
-    from bgap.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO
+    from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO
+    from bgap.datasets.simulate import record
 
     cfg = make_cfg("env=dense", "env.duration=1", "mix=0.5", "backend=highway")
     result = record(cfg, episodes=1, progress=False, render=True)

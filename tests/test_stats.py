@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bgap.stats import (
+from bgap.analysis.stats import (
     bootstrap_test,
     holm,
     seed_bootstrap,

@@ -17,10 +17,11 @@ import optuna
 import pytest
 import sqlalchemy
 
-from bgap.config import compose, validate
-from bgap.errors import ConfigError
-from bgap.sweep import load_space, sweep, write_outputs
-from bgap.train import train as _train  # noqa: F401  (imported early: workers fork cleanly)
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError
+from bgap.experiments.sweep import load_space, sweep, write_outputs
+from bgap.experiments.train import train as _train  # noqa: F401  (imported early: workers fork cleanly)
+from tests.configs import compose
 
 TINY = ["profile=tiny", "sweep_eval_episodes=4"]
 
@@ -39,9 +40,9 @@ def test_multi_objective_sweep_writes_pareto_front_and_preset(tmp_path):
     assert paths["plot"].read_bytes()[:4] == b"\x89PNG"
     front = paths["pareto"].read_text().splitlines()
     assert len(front) - 1 == len(study.best_trials) >= 1
-    from bgap.presets import load_preset
-    from bgap.scenario import RewardConfig
-    from bgap.sweep import chosen_trial
+    from bgap.common.presets import load_preset
+    from bgap.experiments.sweep import chosen_trial
+    from bgap.traffic.scenario import RewardConfig
 
     reward = load_preset(RewardConfig, tmp_path / "tuned.yaml")  # must fit the reward schema
     chosen = chosen_trial(study, cfg)
@@ -54,8 +55,8 @@ def test_multi_objective_sweep_writes_pareto_front_and_preset(tmp_path):
 
 
 def test_resumed_sweep_continues_its_trial_count(tmp_path):
-    from bgap.presets import load_preset
-    from bgap.scenario import RewardConfig
+    from bgap.common.presets import load_preset
+    from bgap.traffic.scenario import RewardConfig
 
     first = sweep(_cfg(tmp_path, "trials=2", "mode=single"), progress=False)
     numbers = [t.number for t in first.trials]
@@ -77,8 +78,8 @@ def test_sweep_of_the_default_policy_trains_and_scores_it_in_stock_traffic(tmp_p
     in the paper's traffic, so the two cannot be confused)."""
     import yaml
 
-    from bgap.rollout import baseline
-    from bgap.sweep import _validation
+    from bgap.agents.policies import baseline
+    from bgap.experiments.sweep import _validation
 
     cfg = _cfg(tmp_path, "trials=1", "mode=single", "env=dense", "policy=default")
     study = sweep(cfg, progress=False)
@@ -92,7 +93,7 @@ def test_sweep_of_the_default_policy_trains_and_scores_it_in_stock_traffic(tmp_p
 
 
 def test_bad_search_spaces_fail_before_training(tmp_path, monkeypatch):
-    import bgap.sweep as sw
+    import bgap.experiments.sweep as sw
 
     with pytest.raises(ConfigError, match="no search space"):
         load_space("nonexistent")
@@ -212,8 +213,8 @@ def test_a_killed_workers_trial_does_not_block_the_study(tmp_path, postgres, mon
     stale = [t.number for t in study.trials if t.state == TrialState.RUNNING]
     assert stale
     # A new worker, after the heartbeat grace period, fails the stale trial and finishes.
-    import bgap.studies as studies
-    from bgap.sweep import sweep as run_sweep
+    import bgap.common.studies as studies
+    from bgap.experiments.sweep import sweep as run_sweep
 
     monkeypatch.setattr(studies, "HEARTBEAT", (1, 2))
     time.sleep(3)

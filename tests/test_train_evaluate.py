@@ -14,15 +14,16 @@ import pandas as pd
 import pytest
 from highway_env.vehicle.kinematics import Vehicle
 
+from bgap.agents.policies import baseline, rollout
 from bgap.envs import make_env
-from bgap.evaluate import Cell, evaluate, summarize
-from bgap.rollout import baseline, rollout
-from bgap.scenario import env_config
+from bgap.experiments.evaluate import Cell, evaluate, summarize
+from bgap.traffic.scenario import env_config
 from tests.conftest import make_cfg
 
 
 def exp_cfg(*overrides: str):
-    from bgap.config import compose, validate
+    from bgap.common.config import validate
+    from tests.configs import compose
 
     return validate(compose("train", list(overrides)))
 
@@ -157,7 +158,7 @@ def test_any_sb3_model_or_callable_is_a_policy(tmp_path):
 
 
 def test_paper_grid_has_the_papers_cells():
-    from bgap.evaluate import grid_cells
+    from bgap.experiments.evaluate import grid_cells
 
     cells = grid_cells(exp_cfg("grid=paper"))
     assert len(cells) == 7 * 2 * 3
@@ -182,8 +183,8 @@ def _interrupted_then_resumed(cfg, monkeypatch, at: int):
     state at the interruption and the (total steps, steps asked) of the resumed learn()."""
     import pickle
 
-    from bgap import train as train_mod
     from bgap.agents.monitor import SB3Monitor
+    from bgap.experiments import train as train_mod
 
     original = SB3Monitor._on_step
 
@@ -221,7 +222,7 @@ def _parameters(run) -> np.ndarray:
 def test_interrupted_and_resumed_training_equals_an_uninterrupted_one(tmp_path, monkeypatch):
     """Vector backend: the checkpoint keeps the environments and random streams, so the
     resumed run ends with exactly the parameters of one never interrupted."""
-    from bgap.train import train
+    from bgap.experiments.train import train
 
     cfg = _short(tmp_path, "backend=vector", "profile.n_envs=2", "mix_sampling=paper")
     whole = train(replace(cfg, run_dir=str(tmp_path / "whole")), progress=False)
@@ -245,7 +246,7 @@ def test_resume_continues_from_the_checkpoint_on_highway_env(tmp_path, monkeypat
 
 @pytest.mark.parametrize("backend", ["vector", "highway"])
 def test_same_seed_reproduces_training_and_evaluation(tmp_path, backend):
-    from bgap.train import train
+    from bgap.experiments.train import train
 
     cfg = _short(tmp_path, f"backend={backend}", "workers=1", "profile.train_steps=120")
     a = train(replace(cfg, run_dir=str(tmp_path / "a")), progress=False)
@@ -260,7 +261,7 @@ def test_same_seed_reproduces_training_and_evaluation(tmp_path, backend):
 
 @pytest.mark.slow
 def test_short_training_beats_random_on_collisions(tmp_path):
-    from bgap.train import train
+    from bgap.experiments.train import train
 
     cfg = exp_cfg("env=sparse", "mix=0.5", "profile.train_steps=3000", f"root={tmp_path}", "seed=3")
     run = train(cfg, progress=False)
@@ -280,8 +281,8 @@ def test_short_training_beats_random_on_collisions(tmp_path):
 def test_training_on_the_vector_backend_transfers_to_highway_env(tmp_path):
     """Equal steps of training on either backend, both evaluated on highway-env on the same
     seeds: the collision rates' 95% intervals overlap and both beat a random policy."""
-    from bgap.evaluate import summarize
-    from bgap.train import train
+    from bgap.experiments.evaluate import summarize
+    from bgap.experiments.train import train
 
     runs = {}
     for backend in ("vector", "highway"):
@@ -313,7 +314,7 @@ def test_training_on_the_vector_backend_transfers_to_highway_env(tmp_path):
 def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_trainings(
     tmp_path, capsys, learner
 ):
-    from bgap.run import run
+    from bgap.experiments.run import run
 
     cfg = exp_cfg(
         f"learner={learner}",
@@ -362,9 +363,9 @@ def _check_best_checkpoints(cfg, runs: Path) -> None:
     """Each training kept its validation with the highest mean return (ties: the later),
     best_model.zip replays that validation's figures, and evaluation plays best_model.zip
     unless checkpoint=last."""
-    from bgap.evaluate import policy_specs
-    from bgap.sweep import validation_episodes
-    from bgap.train import training_config
+    from bgap.experiments.evaluate import policy_specs
+    from bgap.experiments.sweep import validation_episodes
+    from bgap.experiments.train import training_config
 
     kept = sorted(p.parent for p in runs.glob("*/best.json"))
     assert len(kept) == 4

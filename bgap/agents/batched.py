@@ -1,8 +1,9 @@
 """A batched DQN learner: K independent DQN trainings advanced in lock step in one process.
 
 Member k has its own seed, Q and target networks, Adam state, prioritized replay buffer,
-exploration schedule and random streams (and, in :func:`bgap.train.train_batched`, its own
-environments, traffic and run folder). Its update is the algorithm of
+exploration schedule and random streams (and, in
+:func:`bgap.experiments.train.train_batched`, its own environments, traffic and run folder).
+Its update is the algorithm of
 :class:`bgap.agents.dqn.DQN` (Stable-Baselines3's DQN with the MSE loss and prioritized
 replay), counted the way SB3 counts it:
 
@@ -46,7 +47,7 @@ import torch.nn.functional as F
 from torch.optim.adam import adam
 
 from bgap.agents.config import AgentConfig
-from bgap.errors import check
+from bgap.common.errors import check
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from bgap.errors import check
+from bgap.common.errors import check
 
 
 @dataclass

@@ -30,15 +30,16 @@ import numpy as np
 import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.rollout import EpisodeStats, greedy, rollout
-from bgap.runs import BEST_MODEL
+from bgap.agents.policies import greedy, rollout
+from bgap.common.runs import BEST_MODEL
+from bgap.sim.rollout import EpisodeStats
 
 INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
 
 
 def stack_infos(infos: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """SB3's list of per-env info dicts as the vector info (a dict of arrays) both simulators
-    return, for :class:`~bgap.rollout.EpisodeStats`."""
+    return, for :class:`~bgap.sim.rollout.EpisodeStats`."""
     stacked: dict[str, Any] = {
         k: np.array([info[k] for info in infos]) for k in INFO_KEYS if k in infos[0]
     }

@@ -1,6 +1,6 @@
 """A rule-based ego: highway-env's IDM and MOBIL logic mapped onto the five meta-actions.
 
-    from bgap.rollout import rollout
+    from bgap.agents.policies import rollout
     rollout(config, "rule", seeds)          # the baseline ``rule`` of every evaluation
 
 A reference a learned policy should approach: it keeps a safe gap with the Intelligent Driver
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.vocab import EGO_MAX_SPEED, FASTER, IDLE, LANE_LEFT, LANE_RIGHT, LANE_WIDTH, SLOWER
+from bgap.common.vocab import EGO_MAX_SPEED, FASTER, IDLE, LANE_LEFT, LANE_RIGHT, LANE_WIDTH, SLOWER
 
 # highway-env's normalisation of the Kinematics observation (KinematicObservation.normalize_obs)
 X_RANGE, V_RANGE = 5.0 * EGO_MAX_SPEED, 2.0 * EGO_MAX_SPEED

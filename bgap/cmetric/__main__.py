@@ -19,10 +19,11 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
-from bgap.cli import bare_first_argument
-from bgap.config import CMetricAppConfig, app, load
-from bgap.errors import ConfigError
-from bgap.runs import save_run_metadata
+from bgap.cmetric.config import SCHEMAS, CMetricAppConfig
+from bgap.common.cli import bare_first_argument
+from bgap.common.config import app, load
+from bgap.common.errors import ConfigError
+from bgap.common.runs import save_run_metadata
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -105,7 +106,7 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
             pass
 
 
-@app("cmetric_app", "bgap.cmetric", "nothing was written; rerun the command")
+@app("cmetric_app", "bgap.cmetric", SCHEMAS, "nothing was written; rerun the command")
 def _hydra_main(dcfg: DictConfig) -> None:
     score(load(dcfg), dcfg)
 

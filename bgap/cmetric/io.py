@@ -11,7 +11,7 @@ A trajectory table is tidy: one row per vehicle and frame. Columns (aliases in b
   table with both columns is read by ``episode`` (``scene`` is then ignored);
 - optional ``label``: ground-truth class, carried through to the scores.
 
-The Parquet written by :mod:`bgap.recorder` is read as is.
+The Parquet written by :mod:`bgap.sim.recorder` is read as is.
 """
 
 from __future__ import annotations
@@ -21,11 +21,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from bgap.common.errors import TrajectoryError
+
 ALIASES = {"id": "vehicle_id", "track_id": "vehicle_id", "t": "time", "scene": "episode"}
-
-
-class TrajectoryError(ValueError):
-    """The trajectory table cannot be scored; the message says what is wrong and how to fix it."""
 
 
 def read_table(source: str | Path | pd.DataFrame) -> pd.DataFrame:

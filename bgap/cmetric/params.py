@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Optional
 
-from bgap.errors import check
+from bgap.common.errors import check
 
 DEGREE_RULES = ("new_slower", "net_passes")
 EVIDENCE = ("all", "neighbours")

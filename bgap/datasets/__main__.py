@@ -14,9 +14,10 @@ from pathlib import Path
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from bgap.cli import bare_first_argument
-from bgap.config import DatasetsConfig, app, load
-from bgap.runs import save_run_metadata
+from bgap.common.cli import bare_first_argument
+from bgap.common.config import app, load
+from bgap.common.runs import save_run_metadata
+from bgap.datasets.config import SCHEMAS, DatasetsConfig
 
 
 def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
@@ -45,7 +46,7 @@ def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
     return path
 
 
-@app("datasets", "bgap.datasets", "nothing was saved; rerun the command")
+@app("datasets", "bgap.datasets", SCHEMAS, "nothing was saved; rerun the command")
 def _hydra_main(dcfg: DictConfig) -> None:
     make(load(dcfg), dcfg)
 

@@ -60,7 +60,7 @@ def _read(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
 
 def read_recording(tracks_path: Path, index: int) -> pd.DataFrame:
     """One recording (its three files) as two scenes, one per carriageway."""
-    from bgap.recorder import COLUMNS
+    from bgap.sim.recorder import COLUMNS
 
     prefix = tracks_path.name[: -len("tracks.csv")]
     tracks = _read(tracks_path, TRACK_COLUMNS)

@@ -40,7 +40,7 @@ CLASSES = {1: "motorcycle", 2: "car", 3: "truck"}
 
 def read(path: str | Path) -> pd.DataFrame:
     """An NGSIM trajectory file (``.csv`` with a header, or the original ``.txt``)."""
-    from bgap.recorder import COLUMNS
+    from bgap.sim.recorder import COLUMNS
 
     path = Path(path)
     if not path.is_file():

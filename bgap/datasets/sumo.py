@@ -9,7 +9,7 @@ The scene: one straight edge of ``lanes`` lanes and ``length`` metres at ``speed
 Two flows, aggressive and conservative drivers in the share ``mix``, enter at its start
 for ``warmup`` seconds; then one ego car (SUMO's default driver) is inserted at
 ``ego_position`` and every vehicle is recorded every step for ``duration`` seconds into
-bgap's trajectory table (:mod:`bgap.recorder`'s columns; ``x`` along the road, ``y``
+bgap's trajectory table (:mod:`bgap.sim.recorder`'s columns; ``x`` along the road, ``y``
 across it, lanes changed over ``lane_change_duration`` seconds instead of SUMO's default
 instant jump). SUMO's clock counts milliseconds, so the step is 1/``fps`` rounded to
 the millisecond (15 Hz: 0.067 s) and the table's ``time`` is SUMO's own. Each episode is a
@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.errors import check
+from bgap.common.errors import check
 
 CAR_FOLLOWING = ("Krauss", "IDM")
 
@@ -122,7 +122,7 @@ def sumo_home() -> Path:
     try:
         import sumo
     except ImportError:
-        from bgap.errors import ConfigError
+        from bgap.common.errors import ConfigError
 
         raise ConfigError(
             "source=sumo needs SUMO: pip install -e '.[sumo]' (eclipse-sumo and libsumo)"
@@ -233,7 +233,7 @@ def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
 
 def record(cfg: SumoConfig, episodes: int, seed: int, progress=None) -> pd.DataFrame:
     """``episodes`` SUMO runs with seeds ``seed + k`` (episode ``k``)."""
-    from bgap.recorder import COLUMNS
+    from bgap.sim.recorder import COLUMNS
 
     parts = []
     for k in range(episodes):

@@ -1,4 +1,4 @@
-"""Gymnasium environments of bgap. Importing this module registers them."""
+"""Gymnasium environments of bgap (registered by ``import bgap``) and their constructors."""
 
 from __future__ import annotations
 
@@ -6,12 +6,10 @@ from typing import Any
 
 import gymnasium as gym
 
-from bgap.scenario import Scenario, env_config
+from bgap import ENV_ID
+from bgap.traffic.scenario import Scenario, env_config
 
-ENV_ID = "bgap/BehaviorHighway-v0"
-
-if ENV_ID not in gym.registry:
-    gym.register(id=ENV_ID, entry_point="bgap.envs.highway:BehaviorHighwayEnv")
+__all__ = ["ENV_ID", "make_env", "make_highway"]
 
 
 def make_highway(config: dict[str, Any], render_mode: str | None = None) -> gym.Env:

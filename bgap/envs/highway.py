@@ -17,9 +17,9 @@ from highway_env.envs.highway_env import HighwayEnv
 from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 
-from bgap.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
-from bgap.scenario import REWARD_TERMS, check_config, contact_dx, default_config
-from bgap.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
+from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
+from bgap.traffic.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
+from bgap.traffic.scenario import REWARD_TERMS, check_config, contact_dx, default_config
 
 FrameListener = Callable[["BehaviorHighwayEnv"], None]
 
@@ -42,8 +42,8 @@ class BehaviorHighwayEnv(HighwayEnv):
     Config keys beyond highway-v0's: ``mix`` (fraction of aggressive background vehicles),
     ``mix_sampling`` (``fixed``, or a new mix per episode: ``uniform``, ``paper``),
     ``perception_radius`` [m], ``behavior`` (parameters per class, see
-    :class:`bgap.behaviors.DriverParams`), and a ``lane_change_reward`` that is really paid.
-    Defaults and checks: :mod:`bgap.scenario`, shared with the vectorised backend.
+    :class:`bgap.traffic.behaviors.DriverParams`), and a ``lane_change_reward`` that is really paid.
+    Defaults and checks: :mod:`bgap.traffic.scenario`, shared with the vectorised backend.
     """
 
     @classmethod

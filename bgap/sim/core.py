@@ -17,7 +17,7 @@ import math
 import numba as nb
 import numpy as np
 
-from bgap import vocab
+from bgap.common import vocab
 
 # Float state fields --------------------------------------------------------------------
 X, Y, HEADING, SPEED, TARGET_SPEED, TIMER, IMPACT_X, IMPACT_Y, STEER, ACC = range(10)

@@ -1,6 +1,6 @@
 """Stable-Baselines3 adapter: a bgap vector environment as an SB3 ``VecEnv``.
 
-Takes any vector environment that follows the conventions of :mod:`bgap.simulators`
+Takes any vector environment that follows the conventions of :mod:`bgap.sim.simulators`
 (:class:`~bgap.sim.vector.VectorHighway`, or highway-env through ``make_vector_env``): info
 as a dict of arrays, same-step auto-reset with ``info["final_obs"]``. SB3 expects a list of
 per-env ``info`` dicts, the last observation in ``info["terminal_observation"]``, and

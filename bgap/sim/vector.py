@@ -2,7 +2,7 @@
 
 The same traffic model as :class:`bgap.envs.highway.BehaviorHighwayEnv` (highway-env is the
 reference), kept in arrays and stepped by the numba kernels of :mod:`bgap.sim.core`. It
-takes the same config dictionary (:func:`bgap.scenario.env_config`), follows the
+takes the same config dictionary (:func:`bgap.traffic.scenario.env_config`), follows the
 gymnasium vector-env API with same-step auto-reset, and loads highway-env scenes
 (:func:`scene_from_highway`) so that the two can be compared from identical starts.
 
@@ -25,16 +25,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.behaviors import (
-    DRIVER_ATTRIBUTES,
-    BehaviorVehicle,
-    count_aggressive,
-    episode_mix,
-    is_stock,
-    mix_stream,
-)
-from bgap.errors import check
-from bgap.scenario import REWARD_TERMS, contact_dx, full_config
+from bgap.common.errors import check
 from bgap.sim import core
 from bgap.sim.core import (
     ACC,
@@ -57,6 +48,15 @@ from bgap.sim.core import (
     X,
     Y,
 )
+from bgap.traffic.behaviors import (
+    DRIVER_ATTRIBUTES,
+    BehaviorVehicle,
+    count_aggressive,
+    episode_mix,
+    is_stock,
+    mix_stream,
+)
+from bgap.traffic.scenario import REWARD_TERMS, contact_dx, full_config
 
 _CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
 # The ctypes interface of numpy's PCG64, whose C functions every PCG64 stream shares: the
@@ -140,12 +140,12 @@ class VectorHighway(gym.vector.VectorEnv):
     """``num_envs`` behaviour-rich highways in lock step.
 
     Args:
-        config: the environment's config dictionary (:func:`bgap.scenario.env_config`);
-            missing keys take :func:`bgap.scenario.default_config`'s values. Its
+        config: the environment's config dictionary (:func:`bgap.traffic.scenario.env_config`);
+            missing keys take :func:`bgap.traffic.scenario.default_config`'s values. Its
             ``mix_sampling`` (``fixed``, ``uniform`` or ``paper``) draws a mix per env at
             every reset from the env's own stream.
         num_envs: B.
-        record: report every simulation frame in ``info`` (:mod:`bgap.simulators` gives
+        record: report every simulation frame in ``info`` (:mod:`bgap.sim.simulators` gives
             the layout): ``frames`` after a step, ``reset_frames`` and ``labels`` after a
             reset.
     """
@@ -401,7 +401,8 @@ class VectorHighway(gym.vector.VectorEnv):
         return reward * t[:, 4], terms
 
     def _contact_dx(self) -> np.ndarray:
-        """:func:`bgap.scenario.contact_dx` of every env (0 where the ego has not crashed)."""
+        """:func:`bgap.traffic.scenario.contact_dx` of every env (0 where the ego has not
+        crashed)."""
         out = np.zeros(self.num_envs)
         for b in np.flatnonzero(self.g[:, 0, CRASHED]):
             out[b] = contact_dx(self.f[b, :, X], self.f[b, :, Y], self.g[b, :, CRASHED] > 0)

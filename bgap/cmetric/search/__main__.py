@@ -19,6 +19,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
+from bgap.cmetric.config import SCHEMAS
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.search.params import CMetricSearchConfig
 from bgap.cmetric.search.study import (
@@ -31,10 +32,10 @@ from bgap.cmetric.search.study import (
     suggest,
 )
 from bgap.cmetric.truths import broken_truths
-from bgap.config import app, load
-from bgap.presets import selection_hint, write_preset
-from bgap.runs import VOLATILE, digest, save_run_metadata
-from bgap.studies import open_storage, plot_convergence, sqlite_url
+from bgap.common.config import app, load
+from bgap.common.presets import selection_hint, write_preset
+from bgap.common.runs import VOLATILE, digest, save_run_metadata
+from bgap.common.studies import open_storage, plot_convergence, sqlite_url
 
 NOT_CONTENT = (*VOLATILE, "trials", "storage", "preset")
 """Settings a rerun may change without changing what the study holds."""
@@ -222,6 +223,7 @@ def run(cfg: CMetricSearchConfig, dcfg: Any, progress: bool = True) -> dict[str,
 @app(
     "cmetric_search",
     "bgap.cmetric.search",
+    SCHEMAS,
     "finished trials are kept in the study; rerun the same command to continue",
 )
 def _hydra_main(dcfg: DictConfig) -> None:

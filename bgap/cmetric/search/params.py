@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Optional
 
 from bgap.cmetric.params import CMetricConfig
-from bgap.errors import check
+from bgap.common.errors import check
 
 
 @dataclass

@@ -18,10 +18,10 @@ from typing import Any, Protocol
 import numpy as np
 from highway_env.envs.highway_env import HighwayEnv
 
-from bgap.behaviors import BehaviorConfig, paper_behavior
-from bgap.errors import ConfigError, check
-from bgap.presets import load_preset, preset_path
-from bgap.vocab import CLASSES, MIX_SAMPLING
+from bgap.common.errors import ConfigError, check
+from bgap.common.presets import load_preset, preset_path
+from bgap.common.vocab import CLASSES, MIX_SAMPLING
+from bgap.traffic.behaviors import BehaviorConfig, paper_behavior
 
 
 @dataclass

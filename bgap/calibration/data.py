@@ -1,13 +1,15 @@
 """Calibration to observed traffic: ``python -m bgap.calibrate calibrate.target=PATH``.
 
-The paper's mode (:mod:`bgap.calibrate`) fits each class's mean CMetric score to a number.
+The paper's mode (:mod:`bgap.calibration.calibrate`) fits each class's mean CMetric score to a
+number.
 This mode fits bgap's two driver classes to a labelled trajectory table instead: any table
 CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
-``calibrate.aggressive_prefix``: :func:`bgap.kinematics.driver_class`).
+``calibrate.aggressive_prefix``: :func:`bgap.calibration.kinematics.driver_class`).
 
 - **What is compared**: per class, the distributions of the CMetric score, the speed, the
   time headway to the leader, the longitudinal acceleration and the lane changes per
-  vehicle-minute (:mod:`bgap.kinematics`). Each statistic's Wasserstein-1 distance between
+  vehicle-minute (:mod:`bgap.calibration.kinematics`). Each statistic's Wasserstein-1 distance
+  between
   the simulated and the observed sample, over the observed sample's standard deviation,
   weighted by ``calibrate.weights``; the objective is their weighted mean, plus the paper
   mode's penalties for degenerate traffic (too many crashes, stalled traffic), plus (with
@@ -21,7 +23,8 @@ CMetric reads, with ``label`` and ``lane`` columns (labels map to the classes by
   trials differ only in their parameters).
 - **The scene from the data**: the lane count, the vehicles per km and lane
   (:func:`matched_density`) and the aggressive share of the target
-  (:func:`bgap.kinematics.scene`), unless ``calibrate.scene_from_data=false``; the vehicle
+  (:func:`bgap.calibration.kinematics.scene`), unless ``calibrate.scene_from_data=false``; the
+  vehicle
   count stays the ``calibrate.density`` preset's and the limit highway-env's 30 m/s (the
   report shows the target's 85th-percentile speed beside it): bgap's drivers are not
   clipped to the limit, which reaches only the ego, stock drivers and the spawn speeds
@@ -53,15 +56,22 @@ import numpy as np
 import optuna
 import pandas as pd
 
-from bgap.behaviors import BehaviorConfig, DriverParams, paper_behavior
+from bgap.agents.policies import rollout
+from bgap.calibration.config import CalibrateAppConfig
+from bgap.calibration.kinematics import (
+    STATISTICS,
+    Scene,
+    class_samples,
+    compare,
+    driver_class,
+    scene,
+)
 from bgap.cmetric.io import TrajectoryError, load_trajectories
-from bgap.config import CalibrateAppConfig
-from bgap.kinematics import STATISTICS, Scene, class_samples, compare, driver_class, scene
-from bgap.presets import write_preset
-from bgap.rollout import rollout
-from bgap.scenario import env_config, env_preset
-from bgap.studies import open_storage, plot_convergence
-from bgap.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
+from bgap.common.presets import write_preset
+from bgap.common.studies import open_storage, plot_convergence
+from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
+from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
+from bgap.traffic.scenario import env_config, env_preset
 
 ALL_STATISTICS = ("score", *STATISTICS)
 """What the objective compares, per class: the CMetric score and the kinematic statistics."""
@@ -206,7 +216,7 @@ def objective_value(
     :func:`reference_distances`), ``calibrate.reference_penalty`` times the weighted mean of
     the statistics' excesses over it (a statistic Table I matches better then costs
     1 + reference_penalty times its excess in the mean's units)."""
-    from bgap.kinematics import total_distance
+    from bgap.calibration.kinematics import total_distance
 
     c = cfg.calibrate
     table = compare(observed.samples, sim["samples"], asdict(c.weights))
@@ -434,7 +444,7 @@ def calibrate_to_data(
     cfg: CalibrateAppConfig, storage: str, preset: Path, report: Path, progress: bool = True
 ) -> dict[str, Any]:
     """Observe the target, fit both classes, write the preset to ``preset`` and the report
-    into ``report`` (the Optuna study in ``storage``, a URL; :mod:`bgap.calibrate` names
+    into ``report`` (the Optuna study in ``storage``, a URL; :mod:`bgap.calibration.calibrate` names
     the three as for the paper's mode)."""
     storage = open_storage(storage, key="calibrate.storage")  # a bad URL: at once
     observed = observe(cfg)

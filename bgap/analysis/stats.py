@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from scipy.stats import t as student_t
 
-from bgap.vocab import SPEED_FLOOR
+from bgap.common.vocab import SPEED_FLOOR
 
 Z95 = 1.959964
 """Standard normal quantile of a two-sided 95% interval."""

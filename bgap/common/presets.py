@@ -16,10 +16,8 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-CONF_DIR = str(Path(__file__).resolve().parent / "conf")
+CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 """The packaged configuration: Hydra's primary config folder."""
-SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
-"""The packaged Optuna search spaces of ``bgap.sweep``."""
 
 
 def preset_path(group: str, name: str) -> Path:

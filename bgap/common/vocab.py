@@ -53,7 +53,7 @@ PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
 SPEED_FLOOR = 0.9
 """A policy beats the idle ego when it crashes less at a mean speed of at least this fraction
 of idle's on the same episodes: safety bought by crawling is no win (ours; issue 20). The
-same rule ranks recipe candidates (:func:`bgap.stats.constrained_score`)."""
+same rule ranks recipe candidates (:func:`bgap.analysis.stats.constrained_score`)."""
 ENDINGS = ("timeout", "rear_end", "rear_ended", "lane_change", "other")
 """How an episode ended: it ran its full duration; the ego ran into a vehicle ahead; a
 vehicle ran into the ego from behind; contact during or within 2 s after an ego lane change;

@@ -1,7 +1,7 @@
 """Trajectory tables: every simulation frame of every vehicle, one row per vehicle and frame.
 
-Both simulators report their frames in one array layout (:mod:`bgap.simulators`, recorded
-by :func:`bgap.rollout.rollout` with ``record=True``); this module turns them into the table
+Both simulators report their frames in one array layout (:mod:`bgap.sim.simulators`, recorded
+by :func:`bgap.sim.rollout.rollout` with ``record=True``); this module turns them into the table
 CMetric reads. The schema:
 
 ==============  ========  ====================================================

@@ -1,4 +1,5 @@
-"""The one error type for bad configuration values, and the check that raises it.
+"""The error types that mean bad input (the command-line layer turns them into one line and
+exit status 2), and the check that raises the configuration one.
 
 A leaf with no imports, so that CMetric (which stands alone on any trajectory file) and the
 simulator schemas can validate their values the same way without importing each other.
@@ -17,6 +18,11 @@ def check(ok: bool, key: str, value: Any, rule: str) -> None:
     """Raise :class:`ConfigError` naming ``key``, its ``value`` and the ``rule`` it breaks."""
     if not ok:
         raise ConfigError(f"{key}={value!r} is invalid: {rule}")
+
+
+class TrajectoryError(ValueError):
+    """A trajectory table cannot be read or scored; the message says what is wrong and how
+    to fix it."""
 
 
 class Interrupted(KeyboardInterrupt):

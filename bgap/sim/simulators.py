@@ -12,7 +12,7 @@ conventions, so no caller branches on the backend:
 - with ``record=True``: ``info["frames"]`` after a step, the simulation frames of that step
   (``(B, frames per step, n + 1, 7)``, fields :data:`RECORD_FIELDS`), and after a reset
   ``info["reset_frames"]`` (``(B, 1, n + 1, 7)``) and ``info["labels"]`` (``(B, n + 1)``
-  class codes of :data:`bgap.vocab.LABEL_CODES`), masked by ``info["_reset_frames"]`` for
+  class codes of :data:`bgap.common.vocab.LABEL_CODES`), masked by ``info["_reset_frames"]`` for
   envs reset inside a step.
 """
 
@@ -25,9 +25,9 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
-from bgap.errors import ConfigError, check
+from bgap.common.errors import ConfigError, check
+from bgap.common.vocab import BACKENDS, LABEL_CODES
 from bgap.sim.vector import RECORD_FIELDS, VectorHighway
-from bgap.vocab import BACKENDS, LABEL_CODES
 
 __all__ = ["RECORD_FIELDS", "make_vector_env"]
 
@@ -44,7 +44,7 @@ def make_vector_env(
     """``num_envs`` copies of the behaviour-rich highway on ``backend``.
 
     Args:
-        config: the environment's config dictionary (:func:`bgap.scenario.env_config`).
+        config: the environment's config dictionary (:func:`bgap.traffic.scenario.env_config`).
         record: report every simulation frame in ``info`` (trajectory recording).
         render: also put highway-env's pictures of every third frame in
             ``info["images"]`` (highway-env only: the vector backend draws nothing).

@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
 
-from bgap.errors import ConfigError, Interrupted
+from bgap.common.errors import ConfigError, Interrupted, TrajectoryError
 
 BAD_INPUT = 2
 INTERRUPTED = 130
@@ -46,8 +46,6 @@ def known_errors() -> tuple[type[BaseException], ...]:
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 
-    from bgap.cmetric.io import TrajectoryError
-
     return (
         ConfigError,
         TrajectoryError,
@@ -62,7 +60,7 @@ def known_errors() -> tuple[type[BaseException], ...]:
 
 def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
     """Run ``task`` with the one-line error style; ``on_interrupt`` says what a Ctrl-C keeps
-    (an :class:`~bgap.errors.Interrupted` raised by the task says it instead)."""
+    (an :class:`~bgap.common.errors.Interrupted` raised by the task says it instead)."""
     try:
         return task()
     except Interrupted as err:

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import optuna
 
-from bgap.errors import ConfigError
+from bgap.common.errors import ConfigError
 
 # Seconds between a running trial's heartbeats, and without one before it counts as dead.
 HEARTBEAT = (30, 90)
@@ -22,7 +22,7 @@ HEARTBEAT = (30, 90)
 
 def _not_an_interruption(record: logging.LogRecord) -> bool:
     """Optuna logs a trial stopped by Ctrl-C as a failure, with its traceback; the command
-    reports the interruption in one line instead (:mod:`bgap.cli`)."""
+    reports the interruption in one line instead (:mod:`bgap.common.cli`)."""
     interrupted = record.exc_info and issubclass(record.exc_info[0], KeyboardInterrupt)
     return not (interrupted or "KeyboardInterrupt" in record.getMessage())
 

@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from bgap.cmetric.io import TrajectoryError, load_trajectories
-from bgap.vocab import AGGRESSIVE, CONSERVATIVE, EGO
+from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, EGO
 
 STATISTICS = ("speed", "headway", "acceleration", "lane_changes")
 """The statistics :func:`class_samples` returns, in this order."""

@@ -1,28 +1,25 @@
 """Playing a policy on seeded episodes: the one rollout loop of bgap.
 
-    from bgap.rollout import rollout
+    from bgap.agents.policies import rollout   # this loop, with policies named or loaded
     result = rollout(env_config(cfg), "idle", seeds=range(100, 200), backend="vector")
     result.episodes   # one row per episode: crashed, avg_speed, lane_changes, steps, ...
 
 Evaluation, dataset generation (``record=True`` adds every vehicle's trajectory), the
 parity study, calibration and training's periodic evaluation all play their episodes here,
-on either simulator (:func:`bgap.simulators.make_vector_env`). Episode ``k`` is seeded
+on either simulator (:func:`bgap.sim.simulators.make_vector_env`). Episode ``k`` is seeded
 ``seeds[k]``, and so is the policy's own randomness in it, so every policy meets the same
 traffic and a result does not depend on which episodes were played beside it.
 
-A policy is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``); the path of a saved
-Stable-Baselines3 model (``model.zip`` or its run folder; DQN, PPO, A2C, SAC and TD3 are
-recognised from the file, or named as ``ppo:path``) or a loaded model (anything with SB3's
-``predict``), played greedily; a callable from a batch of observations ``(B, V, 5)`` to
-``B`` actions; or a callable ``(observations, rngs) -> actions`` that also gets one seeded
-random stream per episode.
+Here a policy is a loaded model (anything with SB3's ``predict``), played greedily; a
+callable from a batch of observations ``(B, V, 5)`` to ``B`` actions; or a callable
+``(observations, rngs) -> actions`` that also gets one seeded random stream per episode.
+Baseline names (``idle``, ``rule``, ...) and model paths are the agents' business:
+:func:`bgap.agents.policies.rollout` resolves them and plays them here.
 """
 
 from __future__ import annotations
 
 import inspect
-import json
-import zipfile
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,10 +28,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bgap.errors import ConfigError
-from bgap.recorder import table_from_states
-from bgap.simulators import make_vector_env
-from bgap.vocab import BASELINES, IDLE, LABEL_NAMES, LANE_CHANGE_WINDOW, LANE_LEFT, N_ACTIONS
+from bgap.common.vocab import IDLE, LABEL_NAMES, LANE_CHANGE_WINDOW
+from bgap.sim.recorder import table_from_states
+from bgap.sim.simulators import make_vector_env
 
 Policy = Callable[[np.ndarray, list[np.random.Generator]], np.ndarray]
 """A batch of observations (B, V, 5) and one random stream per episode -> B actions."""
@@ -44,81 +40,19 @@ TERMS = ("collision", "lane_change", "right_lane", "high_speed")
 
 
 # ---------------------------------------------------------------------------- policies
-def baseline(name: str, config: dict[str, Any] | None = None) -> Policy:
-    """A scripted ego: ``idle`` holds lane and speed, ``left`` always asks for the left
-    lane, ``random`` draws a meta-action uniformly from the episode's stream, ``rule`` drives
-    by IDM and MOBIL (:mod:`bgap.agents.rule_based`, for the lanes and speeds of the
-    environment ``config``)."""
-    if name == "rule":
-        from bgap.agents.rule_based import rule_based
-
-        driver = rule_based(config)
-        return lambda obs, rngs: driver(obs)
-    if name == "idle":
-        return lambda obs, rngs: np.full(len(obs), IDLE)
-    if name == "left":
-        return lambda obs, rngs: np.full(len(obs), LANE_LEFT)
-    if name == "random":
-        return lambda obs, rngs: np.array([r.integers(N_ACTIONS) for r in rngs])
-    raise ConfigError(f"policy={name!r} is not a baseline; use one of {BASELINES}")
-
-
 def greedy(model: Any) -> Policy:
     """A trained model (SB3's ``predict``) as a policy: its greedy actions, one batched call."""
     return lambda obs, rngs: np.asarray(model.predict(obs, deterministic=True)[0]).reshape(-1)
 
 
-def model_path(spec: str | Path) -> Path:
-    """``model.zip`` itself, or inside the run folder ``spec``."""
-    path = Path(spec)
-    if path.is_dir():
-        path = path / "model.zip"
-    if not path.exists():
-        raise FileNotFoundError(f"no model at {path}; train it with python -m bgap.train")
-    return path
-
-
-# Stable-Baselines3 stores no algorithm name in a model file; each algorithm's own saved
-# attributes tell them apart (A2C's and PPO's policies are the same class).
-_ALGORITHM_KEYS = (
-    ("dqn", "target_update_interval"),
-    ("ppo", "n_epochs"),
-    ("a2c", "n_steps"),
-    ("td3", "policy_delay"),
-    ("sac", "target_entropy"),
-)
-
-
-def load_model(spec: str | Path) -> Any:
-    """A saved Stable-Baselines3 model of any algorithm: ``[algo:]path`` (``ppo:run/model.zip``
-    names it; otherwise it is recognised from the attributes saved in the file). DQN models
-    load as bgap's DQN (SB3's, with the paper's loss and schedules)."""
-    import stable_baselines3 as sb3
-
-    from bgap.agents.dqn import DQN
-
-    classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3}
-    algo, _, rest = str(spec).partition(":")
-    if rest and algo.lower() in classes:
-        path, algo = model_path(rest), algo.lower()
-    else:
-        path = model_path(spec)
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-        found = [name for name, key in _ALGORITHM_KEYS if key in data]
-        if not found:
-            raise ValueError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
-        algo = found[0]
-    return classes[algo].load(path, device="cpu")
-
-
-def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:
-    """Any policy form (module docstring) as a :data:`Policy`, with the number of observation
-    rows it needs (None: any). ``config``: the environment a baseline drives in."""
+def as_callable(spec: Any) -> tuple[Policy, int | None]:
+    """A loaded model (SB3's ``predict``) or a callable as a :data:`Policy`, with the number
+    of observation rows it needs (None: any). Names and paths of policies are resolved by
+    :func:`bgap.agents.policies.as_policy`, above the simulators."""
     if isinstance(spec, (str, Path)):
-        if str(spec) in BASELINES:
-            return baseline(str(spec), config), None
-        spec = load_model(spec)
+        raise TypeError(
+            f"policy {str(spec)!r} is a name or a path: play it with bgap.agents.policies.rollout"
+        )
     if hasattr(spec, "predict"):
         return greedy(spec), int(spec.observation_space.shape[0])
     if not callable(spec):
@@ -142,9 +76,9 @@ class EpisodeStats:
     share; :meth:`row` gives a finished episode's figures. Used by the rollout and by
     training, so both count speed, lane changes and crashes the same way.
 
-    How a crash happened (``ending``, :data:`bgap.vocab.ENDINGS`): ``lane_change`` when the
+    How a crash happened (``ending``, :data:`bgap.common.vocab.ENDINGS`): ``lane_change`` when the
     ego started a lane change in the step of the crash or the step before (at the paper's
-    1 Hz, contact within :data:`~bgap.vocab.LANE_CHANGE_WINDOW` = 2 s of its start);
+    1 Hz, contact within :data:`~bgap.common.vocab.LANE_CHANGE_WINDOW` = 2 s of its start);
     otherwise ``rear_end`` when the vehicle it touched is ahead of it (``info["contact_dx"]``
     > 0), ``rear_ended`` when behind. Our definitions; the paper counts crashes only."""
 
@@ -177,7 +111,7 @@ class EpisodeStats:
                 self.terms[idx, k] += np.asarray(rewards[f"{term}_reward"], dtype=float)[idx]
 
     def ending(self, i: int) -> str:
-        """How env ``i``'s episode ended (so far): :data:`bgap.vocab.ENDINGS`."""
+        """How env ``i``'s episode ended (so far): :data:`bgap.common.vocab.ENDINGS`."""
         if not self.crashed[i]:
             return "timeout"
         if self.steps[i] - self.last_lane_change[i] <= self.window:
@@ -213,7 +147,7 @@ class EpisodeStats:
 @dataclass
 class Rollout:
     """What :func:`rollout` played: one row per episode, and with ``record=True`` every
-    vehicle's trajectory (:mod:`bgap.recorder`'s schema; ``episode`` is the index of the
+    vehicle's trajectory (:mod:`bgap.sim.recorder`'s schema; ``episode`` is the index of the
     seed in ``seeds``)."""
 
     episodes: pd.DataFrame
@@ -240,7 +174,7 @@ def rollout(
     ``progress(k)`` is called with the number of episodes each batch finished.
     """
     seeds = [int(s) for s in seeds]
-    act, _ = as_policy(policy, config)
+    act, _ = as_callable(policy)
     if batch is None:
         batch = min(len(seeds), 256) if backend == "vector" else 1
     rows, tables, images = [], [], []

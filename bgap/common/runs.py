@@ -18,7 +18,7 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
-from bgap.errors import ConfigError
+from bgap.common.errors import ConfigError
 
 VOLATILE = ("resume", "workers", "root", "out", "run_dir")
 """Settings that do not change what a folder holds (where it is, how fast it is made)."""

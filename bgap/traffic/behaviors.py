@@ -22,9 +22,9 @@ from highway_env.road.road import Road
 from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
-from bgap.errors import check
-from bgap.presets import load_preset, preset_path
-from bgap.vocab import COLORS, PAPER_MIXES
+from bgap.common.errors import check
+from bgap.common.presets import load_preset, preset_path
+from bgap.common.vocab import COLORS, PAPER_MIXES
 
 
 @dataclass

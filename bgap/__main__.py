@@ -1,0 +1,51 @@
+"""``bgap <command> [key=value ...]`` (or ``python -m bgap <command>``): one entry point for
+every command; ``bgap`` alone lists them. ``bgap train ...`` is ``python -m bgap.train ...``."""
+
+from __future__ import annotations
+
+import runpy
+import sys
+
+COMMANDS = {
+    "simulate": ("bgap.simulate", "record behaviour-rich traffic as a trajectory table"),
+    "datasets": ("bgap.datasets", "convert SUMO, highD or NGSIM traffic to bgap's table"),
+    "cmetric": ("bgap.cmetric", "score any trajectory table for driving style (CMetric)"),
+    "cmetric.search": ("bgap.cmetric.search", "tune CMetric's parameters on labelled tables"),
+    "calibrate": ("bgap.calibrate", "fit the driver classes to CMetric targets or to data"),
+    "train": ("bgap.train", "train navigation policies (one or many seeds, resumable)"),
+    "evaluate": ("bgap.evaluate", "evaluate models and baselines on seeded episodes"),
+    "run": ("bgap.run", "the main job: train both policies, evaluate, compare"),
+    "sweep": ("bgap.sweep", "Optuna search over reward or learner settings"),
+    "recipe": ("bgap.recipe", "search the training recipe and check it on more seeds"),
+    "parity": ("bgap.parity", "compare the vector backend with highway-env"),
+    "figures": ("bgap.figures", "the study's figures, claims and results page"),
+    "bench": ("bgap.bench", "benchmarks: simulator, learner, CMetric"),
+    "pipeline": ("bgap.pipeline", "the DVC pipeline's code deps; relock moved stages"),
+}
+
+
+def usage() -> str:
+    width = max(map(len, COMMANDS))
+    lines = [f"  {name:<{width}}  {about}" for name, (_, about) in COMMANDS.items()]
+    return (
+        "usage: bgap <command> [key=value ...]   (--help after a command: its options)\n\n"
+        "commands:\n" + "\n".join(lines)
+    )
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(usage())
+        return
+    name = args[0].replace("-", ".") if args[0] not in COMMANDS else args[0]
+    if name not in COMMANDS:
+        print(f"bgap: unknown command {args[0]!r}\n\n{usage()}", file=sys.stderr)
+        raise SystemExit(2)
+    module = COMMANDS[name][0]
+    sys.argv = [f"bgap {name}", *args[1:]]
+    runpy.run_module(module, run_name="__main__", alter_sys=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,107 @@
+"""Policies by name or file: the scripted baselines and saved models of any SB3 algorithm.
+
+A policy spec is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``); the path
+of a saved Stable-Baselines3 model (``model.zip`` or its run folder; DQN, PPO, A2C, SAC and
+TD3 are recognised from the file, or named as ``ppo:path``) or a loaded model, played
+greedily; or a callable (:func:`bgap.sim.rollout.as_callable`). :func:`rollout` plays any
+spec on seeded episodes through the simulators' one rollout loop.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bgap.agents.rule_based import rule_based
+from bgap.common.errors import ConfigError
+from bgap.common.vocab import BASELINES, IDLE, LANE_LEFT, N_ACTIONS
+from bgap.sim import rollout as sim_rollout
+from bgap.sim.rollout import Policy, Rollout, as_callable, greedy
+
+__all__ = ["as_policy", "baseline", "greedy", "load_model", "model_path", "rollout"]
+
+
+def baseline(name: str, config: dict[str, Any] | None = None) -> Policy:
+    """A scripted ego: ``idle`` holds lane and speed, ``left`` always asks for the left
+    lane, ``random`` draws a meta-action uniformly from the episode's stream, ``rule`` drives
+    by IDM and MOBIL (:mod:`bgap.agents.rule_based`, for the lanes and speeds of the
+    environment ``config``)."""
+    if name == "rule":
+        driver = rule_based(config)
+        return lambda obs, rngs: driver(obs)
+    if name == "idle":
+        return lambda obs, rngs: np.full(len(obs), IDLE)
+    if name == "left":
+        return lambda obs, rngs: np.full(len(obs), LANE_LEFT)
+    if name == "random":
+        return lambda obs, rngs: np.array([r.integers(N_ACTIONS) for r in rngs])
+    raise ConfigError(f"policy={name!r} is not a baseline; use one of {BASELINES}")
+
+
+def model_path(spec: str | Path) -> Path:
+    """``model.zip`` itself, or inside the run folder ``spec``."""
+    path = Path(spec)
+    if path.is_dir():
+        path = path / "model.zip"
+    if not path.exists():
+        raise FileNotFoundError(f"no model at {path}; train it with python -m bgap.train")
+    return path
+
+
+# Stable-Baselines3 stores no algorithm name in a model file; each algorithm's own saved
+# attributes tell them apart (A2C's and PPO's policies are the same class).
+_ALGORITHM_KEYS = (
+    ("dqn", "target_update_interval"),
+    ("ppo", "n_epochs"),
+    ("a2c", "n_steps"),
+    ("td3", "policy_delay"),
+    ("sac", "target_entropy"),
+)
+
+
+def load_model(spec: str | Path) -> Any:
+    """A saved Stable-Baselines3 model of any algorithm: ``[algo:]path`` (``ppo:run/model.zip``
+    names it; otherwise it is recognised from the attributes saved in the file). DQN models
+    load as bgap's DQN (SB3's, with the paper's loss and schedules)."""
+    # Here, not at the top: torch and Stable-Baselines3 take seconds to import, and the
+    # baselines and callables need neither.
+    import stable_baselines3 as sb3
+
+    from bgap.agents.dqn import DQN
+
+    classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3}
+    algo, _, rest = str(spec).partition(":")
+    if rest and algo.lower() in classes:
+        path, algo = model_path(rest), algo.lower()
+    else:
+        path = model_path(spec)
+        with zipfile.ZipFile(path) as archive:
+            data = json.loads(archive.read("data"))
+        found = [name for name, key in _ALGORITHM_KEYS if key in data]
+        if not found:
+            raise ValueError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
+        algo = found[0]
+    return classes[algo].load(path, device="cpu")
+
+
+def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:
+    """Any policy spec (module docstring) as a :data:`~bgap.sim.rollout.Policy`, with the
+    number of observation rows it needs (None: any). ``config``: the environment a baseline
+    drives in."""
+    if isinstance(spec, (str, Path)):
+        if str(spec) in BASELINES:
+            return baseline(str(spec), config), None
+        spec = load_model(spec)
+    return as_callable(spec)
+
+
+def rollout(config: dict[str, Any], policy: Any, seeds: Iterable[int], *args, **kwargs) -> Rollout:
+    """:func:`bgap.sim.rollout.rollout` for any policy spec: names and paths resolved here."""
+    if isinstance(policy, (str, Path)):
+        policy = as_policy(policy, config)[0]
+    return sim_rollout.rollout(config, policy, seeds, *args, **kwargs)

@@ -1,0 +1,416 @@
+"""Benchmarks, run by hand (never by the test suite): they print figures.
+
+    python -m bgap.bench env        # policy steps/s of our environment vs highway-v0
+    python -m bgap.bench sim        # vectorised backend vs highway-env vs EnvPool (optional:
+                                    # pip install -e ".[bench]"), both cores
+    python -m bgap.bench learn      # DQN gradient updates/s: SB3 (one training) vs the batched
+                                    # learner with K = 1, 4, 10, 20 members, dense traffic
+    python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
+                                    # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
+
+Figures are reported beside a baseline measured in the same run, since machines are noisy.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+
+def steps_per_second(env, seconds: float, seed: int = 0) -> float:
+    """Random ego actions, auto-reset, for about ``seconds`` of wall time."""
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        _, _, term, trunc, _ = env.step(int(rng.integers(env.action_space.n)))
+        steps += 1
+        if term or trunc:
+            env.reset(seed=seed + steps)
+    return steps / (time.perf_counter() - start)
+
+
+def bench_env(seconds: float) -> None:
+    import gymnasium as gym
+    import highway_env  # noqa: F401
+
+    from bgap.common.config import validate
+    from bgap.datasets.config import compose
+    from bgap.envs import make_env
+    from bgap.traffic.scenario import env_config
+
+    print(f"{'scenario':<10}{'highway-v0':>14}{'bgap paper':>14}{'bgap stock':>14}{'ratio':>8}")
+    for density in ("sparse", "dense"):
+        paper_cfg = validate(compose("simulate", [f"env={density}"]))
+        stock_cfg = validate(compose("simulate", [f"env={density}", "behavior=stock"]))
+        ours = env_config(paper_cfg)
+        keys = ("lanes_count", "vehicles_count", "duration", "policy_frequency")
+        settings = {k: ours[k] for k in (*keys, "simulation_frequency")}  # the same road
+        ref = steps_per_second(gym.make("highway-v0", config=settings), seconds)
+        paper = steps_per_second(make_env(paper_cfg), seconds)
+        stock = steps_per_second(make_env(stock_cfg), seconds)
+        print(f"{density:<10}{ref:>14.1f}{paper:>14.1f}{stock:>14.1f}{paper / ref:>8.2f}")
+    print("policy steps/s, random ego actions; ratio = bgap paper / highway-v0")
+
+
+def synthetic_log(minutes: float = 60.0, vehicles: int = 40, fps: int = 15, seed: int = 0):
+    """A 4-lane ring-road log: speeds 20-38 m/s drifting slowly, a 2 s lane change every ~20 s
+    per vehicle. Benchmark data only: it has the size and sparsity of real logs."""
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    n_frames = int(minutes * 60 * fps)
+    dt = 1.0 / fps
+    ring = 1200.0
+    speed = np.clip(
+        rng.uniform(20, 38, vehicles)
+        + np.cumsum(rng.normal(0, 0.05, (n_frames, vehicles)), axis=0),
+        10,
+        45,
+    )
+    x = (rng.uniform(0, ring, vehicles) + np.cumsum(speed * dt, axis=0)) % ring
+    lane = np.zeros((n_frames, vehicles))
+    current = rng.integers(0, 4, vehicles).astype(float)
+    for f in range(n_frames):  # lane targets change at random, approached at 2 m/s laterally
+        switch = rng.random(vehicles) < 1.0 / (20 * fps)
+        current = np.where(switch, np.clip(current + rng.choice([-1, 1], vehicles), 0, 3), current)
+        lane[f] = current
+    y = 4.0 * lane
+    for f in range(1, n_frames):
+        y[f] = y[f - 1] + np.clip(4.0 * lane[f] - y[f - 1], -2.0 * dt, 2.0 * dt)
+    vy = np.vstack([np.zeros((1, vehicles)), np.diff(y, axis=0) / dt])
+    frames = np.repeat(np.arange(n_frames), vehicles)
+    return pd.DataFrame(
+        {
+            "frame": frames,
+            "time": frames * dt,
+            "vehicle_id": np.tile(np.arange(vehicles), n_frames),
+            "x": x.ravel(),
+            "y": y.ravel(),
+            "vx": speed.ravel(),
+            "vy": vy.ravel(),
+        }
+    )
+
+
+def bench_cmetric(seconds: float) -> None:
+    """One-hour, 40-vehicle, 15 Hz log: our full scoring vs networkx centralities per frame."""
+    from bgap.cmetric import score_trajectories
+    from bgap.cmetric.centrality import Scene, centralities
+    from bgap.cmetric.io import load_trajectories
+    from bgap.cmetric.params import CMetricConfig
+    from bgap.cmetric.reference import centralities_networkx
+    from bgap.common.presets import load_preset, preset_path
+
+    cfg = CMetricConfig()
+    log = synthetic_log()
+    rows = len(log)
+    presets = {"default": cfg}
+    for name in ("robust", "tuned"):  # the shipped presets, tuned once the pipeline wrote it
+        if preset_path("cmetric", name).exists():
+            presets[name] = load_preset(CMetricConfig, preset_path("cmetric", name))
+    times = {}
+    for name, preset in presets.items():
+        score_trajectories(log[log.frame < 100], preset)  # compile outside the clock
+        start = time.perf_counter()
+        score_trajectories(log, preset)
+        times[name] = time.perf_counter() - start
+    full = times["default"]
+
+    # The baseline gets the same frames, as many as fit in `seconds`.
+    n_frames = int(log.frame.max()) + 1
+    scene = Scene.from_table(load_trajectories(log))
+    take = 50
+    start = time.perf_counter()
+    while True:
+        part = Scene(
+            scene.frames[:take],
+            scene.times[:take],
+            scene.vehicle_ids,
+            scene.x[:take],
+            scene.y[:take],
+            scene.speed[:take],
+            scene.present[:take],
+        )
+        t0 = time.perf_counter()
+        ref = centralities_networkx(part, cfg.mu)
+        nx_time = time.perf_counter() - t0
+        if time.perf_counter() - start > seconds or take >= n_frames:
+            break
+        take = min(n_frames, take * 2)
+    t0 = time.perf_counter()
+    ours = centralities(part, cfg.mu)
+    ours_time = time.perf_counter() - t0
+    assert np.allclose(ours[0], ref[0], equal_nan=True) and np.array_equal(ours[1], ref[1])
+    vf = part.present.sum()
+    print(f"log: {rows:,} vehicle-frames ({n_frames:,} frames x 40 vehicles, 15 Hz, 1 h)")
+    for name, seconds_taken in times.items():
+        print(
+            f"bgap full scoring (graphs, fits, styles), cmetric={name}: {seconds_taken:6.2f} s "
+            f"{rows / seconds_taken:12,.0f} vf/s  ({seconds_taken / full:.2f} x default's time)"
+        )
+    print(f"on the first {take:,} frames, centralities only (identical results):")
+    print(f"  networkx per frame : {vf / nx_time:12,.0f} vf/s")
+    print(f"  bgap (numba)       : {vf / ours_time:12,.0f} vf/s")
+    print(
+        f"  ratio bgap/networkx: {nx_time / ours_time:12,.0f} x (centralities); "
+        f"{(rows / full) / (vf / nx_time):,.0f} x (full scoring vs networkx centralities)"
+    )
+
+
+def _vector_steps_per_second(config: dict, num_envs: int, seconds: float) -> float:
+    from bgap.sim.vector import VectorHighway
+
+    venv = VectorHighway(config, num_envs)
+    venv.reset(seed=0)
+    rng = np.random.default_rng(0)
+    venv.step(rng.integers(5, size=num_envs))  # compile / load the cached kernels
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        venv.step(rng.integers(5, size=num_envs))
+        steps += num_envs
+    return steps / (time.perf_counter() - start)
+
+
+def _envpool_steps_per_second(
+    n: int, rows: int, num_envs: int, threads: int, seconds: float
+) -> float | None:
+    try:
+        import envpool
+    except ImportError:
+        return None
+    env = envpool.make_gymnasium(
+        "Highway-v0",
+        num_envs=num_envs,
+        batch_size=num_envs,
+        num_threads=threads,
+        seed=0,
+        lanes_count=4,
+        vehicles_count=n,
+        observation_vehicles_count=rows,
+        duration=60,
+        max_episode_steps=60,
+        simulation_frequency=15,
+        policy_frequency=1,
+    )
+    env.reset()
+    rng = np.random.default_rng(0)
+    steps, start = 0, time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        env.step(rng.integers(5, size=num_envs))
+        steps += num_envs
+    return steps / (time.perf_counter() - start)
+
+
+def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
+    """Policy steps/s, random ego actions, dense and sparse, of highway-env (one env, the
+    reference), bgap's vectorised backend (``num_envs`` envs on ``threads`` threads) and
+    EnvPool's C++ Highway-v0 at the same settings (when installed); then the vector backend
+    in the opt-in fast mode (:func:`bgap.traffic.scenario.fast_mode`, 10 Hz instead of 15)."""
+    import numba
+
+    from bgap.common.config import validate
+    from bgap.datasets.config import compose
+    from bgap.envs import make_env
+    from bgap.traffic.scenario import env_config, fast_mode
+
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    print(f"{num_envs} envs, {threads} threads, random ego actions, policy steps/s")
+    head = f"{'scenario':<9}{'highway-env':>13}{'vector':>11}{'EnvPool':>11}"
+    fast_head = f"{'fast':>9}{'fast/highway':>14}{'fast/EnvPool':>14}"
+    print(f"{head}{'vector/highway':>16}{'vector/EnvPool':>16}{fast_head}")
+    configs: dict[str, dict] = {}
+    for density in ("dense", "sparse"):
+        cfg = validate(compose("simulate", [f"env={density}"]))
+        config = env_config(cfg)
+        ref = steps_per_second(make_env(cfg), seconds)
+        vec = _vector_steps_per_second(config, num_envs, seconds)
+        pool = _envpool_steps_per_second(
+            cfg.env.vehicles_count, cfg.env.observed_vehicles, num_envs, threads, seconds
+        )
+        fast = _vector_steps_per_second(fast_mode(config), num_envs, seconds)
+        pool_s = f"{pool:>11.0f}" if pool else f"{'n/a':>11}"
+        ratio = f"{vec / pool:>16.2f}" if pool else f"{'n/a':>16}"
+        fast_ratio = f"{fast / pool:>14.2f}" if pool else f"{'n/a':>14}"
+        print(
+            f"{density:<9}{ref:>13.1f}{vec:>11.0f}{pool_s}{vec / ref:>16.0f}{ratio}"
+            f"{fast:>9.0f}{fast / ref:>14.0f}{fast_ratio}"
+        )
+        configs[density] = config
+    print("EnvPool has no behaviour classes (its traffic is highway-env's stock IDM).")
+    print("fast: the vector backend at 10 Hz (bgap.scenario.fast_mode), the others at 15 Hz.")
+    _print_phase_split(configs, num_envs, seconds)
+
+
+def _print_phase_split(configs: dict[str, dict], num_envs: int, seconds: float) -> None:
+    """Where a vector step's time goes: each phase as its own batched kernel
+    (:mod:`bgap.sim.phases`), in ns per env-step and as a share of the phases' sum."""
+    from bgap.sim.phases import PHASES, phase_split
+    from bgap.sim.vector import VectorHighway
+
+    print(f"\nvector backend per phase, {num_envs} envs (ns per env-step, % of the sum)")
+    print(f"{'phase':<24}" + "".join(f"{d:>20}" for d in configs))
+    splits = {d: phase_split(VectorHighway(c, num_envs), seconds) for d, c in configs.items()}
+    for phase in PHASES:
+        cells = "".join(
+            f"{splits[d][phase]:>12.0f} {100 * splits[d][phase] / sum(splits[d].values()):>6.1f}%"
+            for d in configs
+        )
+        print(f"{phase:<24}{cells}")
+    print("(each phase a kernel of its own here: the fused step above skips their launches)")
+
+
+def _learn_config(policy: str = "behavior_rich"):
+    """Dense traffic, the default agent at the paper's replay ratio (one update per
+    transition: ``gradient_steps=-1``)."""
+    from bgap.common.config import validate
+    from bgap.experiments.config import compose
+
+    return validate(compose("train", ["env=dense", f"policy={policy}", "agent.gradient_steps=-1"]))
+
+
+def _sb3_rate(seconds: float) -> tuple[float, float]:
+    """Gradient updates/s and transitions/s of SB3's DQN (bgap.train's model), one training,
+    after ``learning_starts``."""
+    import tempfile
+    from pathlib import Path
+
+    import torch
+
+    from bgap.experiments.train import build_model, make_training_env
+
+    torch.set_num_threads(1)  # as bgap.train
+    cfg = _learn_config()
+    env = make_training_env(cfg, cfg.profile.n_envs, seed=0)
+    with tempfile.TemporaryDirectory() as tmp:
+        model = build_model(cfg, env, Path(tmp))
+        model.tensorboard_log = None
+        model.learn(cfg.agent.learning_starts + 200)  # warm: past learning_starts, compiled
+        updates, steps, start, chunk = (
+            model._n_updates,
+            model.num_timesteps,
+            time.perf_counter(),
+            200,
+        )
+        while time.perf_counter() - start < seconds:
+            model.learn(chunk, reset_num_timesteps=False)
+        elapsed = time.perf_counter() - start
+        rates = (model._n_updates - updates) / elapsed, (model.num_timesteps - steps) / elapsed
+    env.close()
+    return rates
+
+
+def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[float, float]:
+    """Member gradient updates/s and transitions/s of a K-member batched learner: the
+    training loop of :func:`bgap.experiments.train.train_batched` (act, simulate all members'
+    envs in one vector env, store, update) without its bookkeeping (episode statistics,
+    checkpoints)."""
+    from bgap.agents.batched import BatchedDQN, Schedule
+    from bgap.experiments.train import final_observations
+    from bgap.sim.simulators import make_vector_env
+    from bgap.traffic.scenario import env_config
+
+    cfg = _learn_config()
+    e = cfg.profile.n_envs
+    venv = make_vector_env(env_config(cfg, cfg.mix_sampling), k * e, "vector")
+    obs, _ = venv.reset(seed=list(range(k * e)))
+    space = venv.single_observation_space
+    learner = BatchedDQN(
+        cfg.agent, Schedule(e, cfg.profile.train_steps, cfg.agent.exploration_decay_steps),
+        list(range(k)), int(np.prod(space.shape)), 5, device=device,
+    )  # fmt: skip
+    members = np.arange(k)
+    obs = obs.reshape(k, e, *space.shape)
+
+    def step() -> None:
+        nonlocal obs
+        actions = learner.act(obs, members)
+        new, rewards, term, trunc, info = venv.step(actions.reshape(-1))
+        final = final_observations(new, term | trunc, info)
+        learner.num_timesteps += e
+        shape = (k, e)
+        learner.observe(members, obs, final.reshape(k, e, -1), actions, rewards.reshape(shape),
+                        term.reshape(shape), trunc.reshape(shape))  # fmt: skip
+        obs = new.reshape(obs.shape)
+        learner.train(members)
+
+    while learner.n_updates[0] < 20:  # past learning_starts, kernels compiled
+        step()
+    updates, steps, start = (
+        learner.n_updates.sum(),
+        learner.num_timesteps.sum(),
+        time.perf_counter(),
+    )
+    while time.perf_counter() - start < seconds:
+        step()
+    elapsed = time.perf_counter() - start
+    return (learner.n_updates.sum() - updates) / elapsed, (
+        learner.num_timesteps.sum() - steps
+    ) / elapsed
+
+
+def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: int = 0) -> None:
+    """Gradient updates/s of SB3's DQN (one training) and of the batched learner with K
+    members (member-updates/s), dense traffic, one update per transition; and the wall time
+    of a study of 40 trainings x 180,000 transitions at each rate."""
+    import os
+
+    import torch
+
+    from bgap.agents.batched import default_device
+
+    threads = threads or os.cpu_count() or 1
+    study = 40 * 180_000  # transitions = updates at the paper's replay ratio
+    sb3_updates, sb3_steps = _sb3_rate(seconds)
+    torch.set_num_threads(threads)
+    device = default_device()
+    print(f"dense traffic, one gradient update per transition; batched learner on {device}, "
+          f"{threads} torch threads")  # fmt: skip
+    print(f"{'learner':<16}{'updates/s':>11}{'transitions/s':>15}{'study 40x180k':>15}")
+    print(
+        f"{'SB3 DQN':<16}{sb3_updates:>11.0f}{sb3_steps:>15.0f}{study / sb3_updates / 3600:>14.1f}h"
+    )
+    rates = {}
+    for k in ks:
+        updates, steps = _batched_rate(k, seconds, str(device))
+        rates[k] = updates
+        name = f"batched K={k}"
+        print(f"{name:<16}{updates:>11.0f}{steps:>15.0f}{study / updates / 3600:>14.1f}h")
+    if 10 in rates:
+        print(f"speedup K=10: {rates[10] / sb3_updates:.2f}x")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        prog="python -m bgap.bench",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("what", choices=sorted(BENCHES))
+    parser.add_argument("--seconds", type=float, default=10.0, help="wall time per measurement")
+    parser.add_argument("--envs", type=int, default=64, help="sim: batched environments")
+    parser.add_argument("--threads", type=int, default=2, help="sim: threads for both peers")
+    parser.add_argument(
+        "--members", type=int, nargs="+", default=[1, 4, 10, 20], help="learn: values of K"
+    )
+    args = parser.parse_args(argv)
+    if args.what == "sim":
+        bench_sim(args.seconds, num_envs=args.envs, threads=args.threads)
+    elif args.what == "learn":
+        bench_learn(args.seconds, tuple(args.members))
+    else:
+        BENCHES[args.what](args.seconds)
+
+
+BENCHES: dict[str, Callable[[float], None]] = {
+    "env": bench_env,
+    "cmetric": bench_cmetric,
+    "sim": bench_sim,
+    "learn": bench_learn,
+}
+
+if __name__ == "__main__":
+    main()

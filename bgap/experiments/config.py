@@ -1,0 +1,272 @@
+"""Schemas of training, evaluation, the main job, sweeps and the recipe."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+from omegaconf import DictConfig
+
+from bgap.agents.config import AgentConfig
+from bgap.common import config as plumbing
+from bgap.common.errors import check
+from bgap.common.vocab import (
+    BASELINES,
+    CHECKPOINTS,
+    LEARNERS,
+    MIX_SAMPLING,
+    POLICIES,
+    SPEED_FLOOR,
+)
+from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
+from bgap.sim.config import BaseConfig
+
+
+@dataclass
+class ProfileConfig:
+    """Compute budget (config group ``profile``: ``quick`` or ``paper``)."""
+
+    name: str = "quick"
+    train_steps: int = 30_000
+    """Environment steps of training (the cap when ``train_episodes`` is set)."""
+    train_episodes: Optional[int] = None
+    """Stop after this many training episodes (the paper: 3000)."""
+    n_envs: int = 2
+    """Parallel training environments (subprocesses when > 1)."""
+    exploration_decay_steps: Optional[float] = None
+    """Overrides ``agent.exploration_decay_steps`` (short budgets need a shorter decay)."""
+    eval_every_episodes: int = 0
+    """Periodic greedy evaluation during training every this many episodes; 0: off."""
+    eval_during_training: int = 20
+    """Episodes of each periodic evaluation (the paper: 20 every 50)."""
+    eval_episodes: int = 100
+    """Episodes per grid cell of the final evaluation."""
+    checkpoint_every: int = 1000
+    """Steps between checkpoints (model and replay buffer)."""
+
+    def __post_init__(self) -> None:
+        check(self.train_steps >= 1, "profile.train_steps", self.train_steps, "must be >= 1")
+        check(
+            self.train_episodes is None or self.train_episodes >= 1,
+            "profile.train_episodes",
+            self.train_episodes,
+            "must be >= 1 or null",
+        )
+        check(self.n_envs >= 1, "profile.n_envs", self.n_envs, "must be >= 1")
+        check(self.eval_episodes >= 1, "profile.eval_episodes", self.eval_episodes, ">= 1")
+        check(self.checkpoint_every >= 1, "profile.checkpoint_every", self.checkpoint_every, ">= 1")
+
+
+@dataclass
+class GridConfig:
+    """Evaluation grid (config group ``grid``). An empty list means the run's own value."""
+
+    name: str = "single"
+    mixes: list[float] = field(default_factory=list)
+    densities: list[str] = field(default_factory=list)
+    """Names of ``env`` presets (``sparse``, ``dense``)."""
+    radii: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        for m in self.mixes:
+            check(0 <= m <= 1, "grid.mixes", self.mixes, "every mix must lie in [0, 1]")
+        for r in self.radii:
+            check(r > 0, "grid.radii", self.radii, "every radius must be positive")
+
+
+@dataclass
+class ExperimentConfig(BaseConfig):
+    """Training, evaluation and the main job (``bgap.train``, ``bgap.evaluate``, ``bgap.run``)."""
+
+    agent: AgentConfig = field(default_factory=AgentConfig)
+    profile: ProfileConfig = field(default_factory=ProfileConfig)
+    grid: GridConfig = field(default_factory=GridConfig)
+    backend: str = "vector"
+    """Training and evaluation run on the vectorised backend by default (the same traffic,
+    step for step, ~1000x faster on dense); ``backend=highway`` runs highway-env itself."""
+    policy: str = "behavior_rich"
+    """``behavior_rich`` trains in the enriched traffic; ``default`` in stock traffic."""
+    mix_sampling: str = "fixed"
+    """Training mix: ``fixed`` (= ``mix``), ``uniform`` in [0, 1] or ``paper`` (one of the
+    paper's seven mixes) drawn anew each episode."""
+    root: str = "outputs"
+    """Every run folder and result lives under this output root."""
+    run_dir: Optional[str] = None
+    """Training run folder; default ``<root>/runs/<name derived from the config>``. With
+    ``seeds=[...]`` or ``policies=[...]`` (the batched learner), the folder holding one run
+    folder per training, ``<density>-<policy>-s<seed>``."""
+    resume: bool = False
+    """Continue an interrupted training run from its last checkpoint."""
+    models: list[str] = field(default_factory=list)
+    """``bgap.evaluate``: run folders (or model.zip files) to evaluate."""
+    baselines: list[str] = field(default_factory=lambda: ["idle", "random", "rule"])
+    """Scripted policies evaluated beside the models: idle, random, left, rule (IDM + MOBIL)."""
+    eval_seed: int = 100_000
+    """Test episodes: episode k of every cell uses seed eval_seed + k, for every policy."""
+    seeds: list[int] = field(default_factory=list)
+    """``bgap.run``: training seeds, each trained and evaluated, with intervals across them
+    (training seeds are the independent units); empty: ``[seed]``."""
+    val_seed: int = 50_000
+    """Validation episodes (training's periodic evaluations, sweeps' scores) use seed
+    val_seed + k: choices are made on these, never on the test episodes (ours)."""
+    workers: int = 2
+    """Evaluation worker processes."""
+    learner: str = "sb3"
+    """``sb3``: Stable-Baselines3's DQN, one training per process (the reference);
+    ``batched``: every training of the command in one batched learner
+    (:mod:`bgap.agents.batched`; ``bgap.train seeds=[0,1,2]``), on CUDA when torch sees a
+    GPU."""
+    threads: int = 0
+    """torch threads of the batched learner; 0: one per core. (The SB3 learner uses 1.)"""
+    policies: list[str] = field(default_factory=list)
+    """``bgap.train``: train these policy families (each with every seed); empty:
+    ``[policy]``."""
+    out: Optional[str] = None
+    """``bgap.evaluate`` / ``bgap.run`` results folder; default under ``<root>/results``."""
+    checkpoint: str = "best"
+    """Which parameters of a training are evaluated: ``best``, the checkpoint its periodic
+    validations chose (``best_model.zip``: the highest mean validation return, as SB3's
+    ``EvalCallback``; ours, the paper keeps none), or ``last``, the final parameters
+    (``model.zip``). A run without validations has only the last."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check(self.policy in POLICIES, "policy", self.policy, f"use one of {POLICIES}")
+        check(
+            self.agent.converged,
+            "agent",
+            self.agent.name,
+            "is from a sweep stopped before its trials were done (converged: false in the "
+            "preset); rerun the sweep to finish it, or use it knowingly with "
+            "agent.converged=true",
+        )
+        check(
+            self.checkpoint in CHECKPOINTS,
+            "checkpoint",
+            self.checkpoint,
+            f"use one of {CHECKPOINTS}",
+        )
+        check(
+            self.mix_sampling in MIX_SAMPLING,
+            "mix_sampling",
+            self.mix_sampling,
+            f"use one of {MIX_SAMPLING}",
+        )
+        for b in self.baselines:
+            check(b in BASELINES, "baselines", self.baselines, f"each one of {BASELINES}")
+        check(self.workers >= 1, "workers", self.workers, "must be >= 1")
+        check(self.learner in LEARNERS, "learner", self.learner, f"use one of {LEARNERS}")
+        check(self.threads >= 0, "threads", self.threads, "must be >= 0 (0: one per core)")
+        for p in self.policies:
+            check(p in POLICIES, "policies", self.policies, f"each one of {POLICIES}")
+        check(
+            all(s >= 0 for s in self.seeds) and len(set(self.seeds)) == len(self.seeds),
+            "seeds",
+            self.seeds,
+            "must be distinct non-negative training seeds, e.g. seeds=[0,1,2]",
+        )
+        check(
+            self.val_seed + 10_000 <= self.eval_seed or self.eval_seed + 10_000 <= self.val_seed,
+            "val_seed",
+            self.val_seed,
+            f"must be at least 10000 away from eval_seed={self.eval_seed} (validation and test "
+            "episodes never share seeds)",
+        )
+
+
+@dataclass
+class SweepConfig(ExperimentConfig):
+    """``python -m bgap.sweep``: the experiment every trial starts from, plus the search."""
+
+    sweep: str = "reward"
+    """Search space ``sweeps/<sweep>.yaml`` (``reward`` or ``dqn``)."""
+    mode: str = "multi"
+    """``multi``: minimise collisions and maximise speed (Pareto front); ``single``: the
+    scalarisation collision % - speed_weight * speed, with pruning; ``constrained``:
+    minimise collisions among policies at least ``speed_floor`` x idle's speed, with pruning."""
+    trials: int = 20
+    """Finished trials wanted in the study, counted across workers and reruns."""
+    speed_weight: float = 2.0
+    """Collision percentage points one m/s of average speed is worth (single mode, and the
+    choice of the written preset on a Pareto front)."""
+    speed_floor: float = SPEED_FLOOR
+    """Constrained mode: the fraction of idle's mean speed (same validation episodes) a
+    policy must reach to count as feasible."""
+    prune_every: int = 0
+    """Single mode: steps between intermediate evaluations (0: a quarter of the budget)."""
+    sweep_eval_episodes: int = 30
+    """Greedy evaluation episodes per trial (fixed seeds, the same for every trial)."""
+    storage: Optional[str] = None
+    """Optuna URL (sqlite:///..., postgresql://..., journal:PATH); default SQLite under root."""
+    study: Optional[str] = None
+    """Study name; default ``<sweep>-<mode>-<env>``."""
+    write_preset: bool = True
+    preset: Optional[str] = None
+    """Where the chosen preset goes; default ``<root>/presets/<group>/user_tuned.yaml``
+    (then ``reward=user_tuned``)."""
+    overrides: list[str] = field(default_factory=list)
+    """Extra overrides every trial composes with (e.g. ["profile.train_steps=5000"])."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        modes = ("multi", "single", "constrained")
+        check(self.mode in modes, "mode", self.mode, f"use one of {modes}")
+        check(0 < self.speed_floor <= 2, "speed_floor", self.speed_floor, "a fraction in (0, 2]")
+
+
+@dataclass
+class RecipeConfig(SweepConfig):
+    """``python -m bgap.recipe``: the recipe sweep, then its best trials rerun on more seeds."""
+
+    sweep: str = "recipe"
+    mode: str = "constrained"
+    candidates: int = 4
+    """Best sweep trials (by the constrained objective) rerun with ``check_seeds``."""
+    check_seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    """Training seeds of each candidate's rerun."""
+    check_episodes: int = 100
+    """Validation episodes per candidate and seed (the same for the idle and rule egos)."""
+    preset_dir: Optional[str] = None
+    """Where the chosen ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` go;
+    default ``<root>/presets`` (the pipeline's stage: ``bgap/conf``)."""
+    preset_name: str = "user_recipe"
+    """Name of the written presets (``reward=user_recipe agent=user_recipe``); the pipeline's
+    stage writes the packaged ``recipe``, which a user's preset must not shadow."""
+    stock_check: bool = False
+    """Also train each candidate's default policy (highway-env's stock traffic) with every
+    check seed, and rank the candidates whose default policy misses the stock rule (fewer
+    than ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's speed, on stock
+    validation episodes) after those that meet it: the recipe is shared by both policies."""
+    stock_max_collision_pct: float = 50.0
+    """The stock rule's collision bound (issue 20: under half of the episodes)."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check(self.mode != "multi", "mode", self.mode, "a recipe needs one objective")
+        check(
+            0 < self.stock_max_collision_pct <= 100,
+            "stock_max_collision_pct",
+            self.stock_max_collision_pct,
+            "a percentage in (0, 100]",
+        )
+        check(self.candidates >= 1, "candidates", self.candidates, "must be >= 1")
+        check(len(self.check_seeds) >= 2, "check_seeds", self.check_seeds, ">= 2 seeds")
+        check(self.check_episodes >= 10, "check_episodes", self.check_episodes, ">= 10")
+
+
+SCHEMAS = (
+    *SIM_SCHEMAS,
+    ("agent", "base_agent", AgentConfig),
+    ("profile", "base_profile", ProfileConfig),
+    ("grid", "base_grid", GridConfig),
+    (None, "base_experiment", ExperimentConfig),
+    (None, "base_sweep", SweepConfig),
+    (None, "base_recipe", RecipeConfig),
+)
+"""Hydra ConfigStore entries of ``train``, ``evaluate``, ``run``, ``sweep`` and ``recipe``."""
+
+
+def compose(config_name: str, overrides: list[str] | None = None) -> DictConfig:
+    """The packaged ``<config_name>.yaml`` of these commands with command-line style
+    overrides, outside a Hydra app (Optuna trials, scripts, tests)."""
+    return plumbing.compose(config_name, overrides, SCHEMAS)

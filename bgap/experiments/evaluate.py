@@ -1,0 +1,296 @@
+"""Evaluation: policies x grid cells x seeded episodes -> collision %, speed, lane changes.
+
+    python -m bgap.evaluate models=[outputs/runs/RUN_A,outputs/runs/RUN_B] grid=paper
+
+Every policy plays the same episodes: episode k of a cell is seeded ``eval_seed + k``, so
+differences between policies are paired. Per episode we record whether it ended in a crash,
+the ego's average speed (sampled each policy step) and its lane changes (actions that moved
+its target lane, see ``info["lane_change"]``). Per cell: collision frequency (% of episodes
+that end in a crash, 95% Wilson interval), mean speed and mean lane changes (95% t interval),
+and the split of the crashes by kind (``ending``: rear end, rear-ended, lane change; see
+:class:`bgap.sim.rollout.EpisodeStats`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from omegaconf import DictConfig
+from tqdm import tqdm
+
+from bgap.agents.policies import as_policy, load_model, rollout
+from bgap.analysis.stats import t_interval, wilson_interval
+from bgap.common.config import app, load
+from bgap.common.errors import ConfigError
+from bgap.common.runs import MODEL, model_file
+from bgap.common.vocab import BASELINES, CRASH_KINDS
+from bgap.experiments.config import SCHEMAS, ExperimentConfig
+from bgap.traffic.scenario import env_config, env_preset
+
+
+@dataclass(frozen=True)
+class Cell:
+    mix: float
+    density: str
+    radius: float
+
+
+def grid_cells(cfg: ExperimentConfig) -> list[Cell]:
+    """The cells of ``cfg.grid``; empty axes take the run's own mix, density and radius."""
+    g = cfg.grid
+    return [
+        Cell(float(m), str(d), float(r))
+        for d in (g.densities or [cfg.env.name])
+        for m in (g.mixes or [cfg.mix])
+        for r in (g.radii or [cfg.radius])
+    ]
+
+
+def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
+    """highway-env config of one cell: the run's reward and behaviours, the cell's traffic."""
+    env = cfg.env if cell.density == cfg.env.name else env_preset(cell.density)
+    return env_config(replace(cfg, env=env, mix=cell.mix, radius=cell.radius))
+
+
+def _evaluate_chunk(
+    name: str, spec: Any, cell: Cell, env_cfg: dict, seeds: list[int], backend: str = "highway"
+) -> list:
+    policy, rows = as_policy(spec)
+    if rows is not None and rows != env_cfg["observation"]["vehicles_count"]:
+        return []  # a model sees a fixed number of vehicles: only its own density
+    key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}
+    episodes = rollout(env_cfg, policy, seeds, backend).episodes
+    return [{**key, **row} for row in episodes.to_dict(orient="records")]
+
+
+def _check_densities(policies: dict[str, Any], cells: list[Cell], cfg: ExperimentConfig) -> None:
+    """A model sees a fixed number of vehicles: each must have a cell of its density."""
+    rows = {c.density: cell_env_config(cfg, c)["observation"]["vehicles_count"] for c in cells}
+    for name, spec in policies.items():
+        needs = as_policy(spec)[1]
+        if needs is not None and needs not in rows.values():
+            raise ConfigError(
+                f"policy {name} observes {needs} vehicles (density "
+                f"{_density_of(needs)}), but the grid's densities {sorted(rows)} have "
+                f"{sorted(set(rows.values()))}; evaluate it at its own density (env=... or "
+                "grid.densities=[...])"
+            )
+
+
+def _loaded(spec: Any) -> Any:
+    """A saved model's path as the loaded model; any other policy form as it is."""
+    if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
+        return load_model(spec)
+    return spec
+
+
+def _density_of(rows: int) -> str:
+    from bgap.common.presets import CONF_DIR
+
+    names = sorted(p.stem for p in (Path(CONF_DIR) / "env").glob("*.yaml"))
+    found = [n for n in names if env_preset(n).observed_vehicles == rows]
+    return found[0] if found else "unknown"
+
+
+def evaluate(
+    cfg: ExperimentConfig,
+    policies: dict[str, str],
+    cells: Iterable[Cell] | None = None,
+    episodes: int | None = None,
+    progress: bool = True,
+    chunk: int = 5,
+) -> pd.DataFrame:
+    """Play ``episodes`` seeded episodes of every policy on every cell; one row per episode.
+
+    ``policies`` maps a display name to any policy :func:`bgap.sim.rollout.as_policy` accepts: a
+    baseline (idle, random, left), a model path, a loaded SB3 model or a callable from
+    observations to actions (your own agent; it must be picklable when ``workers`` > 1 on
+    highway-env).
+    """
+    cells = list(cells or grid_cells(cfg))
+    episodes = episodes or cfg.profile.eval_episodes
+    seeds = [cfg.eval_seed + k for k in range(episodes)]
+    if cfg.backend == "vector":  # one batch per cell and policy, compiled threads in-process
+        chunk, workers = episodes, 1
+    else:
+        workers = cfg.workers
+    if workers == 1:  # in-process: load each saved model once, not once per cell and chunk
+        # (an SB3 load builds the networks again: ~0.3 s, 1,200 times in the paper's grid)
+        policies = {name: _loaded(spec) for name, spec in policies.items()}
+    _check_densities(policies, cells, cfg)
+    jobs = [
+        (name, spec, cell, cell_env_config(cfg, cell), seeds[i : i + chunk], cfg.backend)
+        for cell in cells
+        for name, spec in policies.items()
+        for i in range(0, episodes, chunk)
+    ]
+    rows: list[dict] = []
+    bar = tqdm(total=len(jobs) * chunk, unit="ep", desc="evaluate", disable=not progress)
+    if workers > 1:
+        with ProcessPoolExecutor(workers, mp_context=get_context("fork")) as pool:
+            for part in pool.map(_evaluate_chunk, *zip(*jobs, strict=True)):
+                rows.extend(part)
+                bar.update(chunk)
+    else:
+        for job in jobs:
+            rows.extend(_evaluate_chunk(*job))
+            bar.update(chunk)
+    bar.close()
+    return pd.DataFrame(rows)
+
+
+def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per policy and cell: collision %, average speed, lane changes, each with a 95% CI."""
+    rows = []
+    for key, g in episodes.groupby(["policy", "mix", "density", "radius"], sort=False):
+        crashes, n = int(g.crashed.sum()), len(g)
+        lo, hi = wilson_interval(crashes, n)
+        s_lo, s_hi = t_interval(g.avg_speed.to_numpy())
+        l_lo, l_hi = t_interval(g.lane_changes.to_numpy(dtype=float))
+        rows.append(
+            dict(zip(["policy", "mix", "density", "radius"], key, strict=True))
+            | {
+                "episodes": n,
+                "collision_pct": 100.0 * crashes / n,
+                "collision_lo": 100 * lo,
+                "collision_hi": 100 * hi,
+                "avg_speed": g.avg_speed.mean(),
+                "speed_lo": s_lo,
+                "speed_hi": s_hi,
+                "lane_changes": g.lane_changes.mean(),
+                "lane_changes_lo": l_lo,
+                "lane_changes_hi": l_hi,
+                "return": g["return"].mean(),
+                **crash_split(g),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def crash_split(episodes: pd.DataFrame) -> dict[str, float]:
+    """% of episodes ending in each kind of crash (``<kind>_pct``, :data:`CRASH_KINDS`)."""
+    if "ending" not in episodes:  # episodes recorded before the endings were
+        return {}
+    share = episodes.ending.value_counts(normalize=True)
+    return {f"{kind}_pct": 100.0 * float(share.get(kind, 0.0)) for kind in CRASH_KINDS}
+
+
+def write_results(out: Path, episodes: pd.DataFrame, summary: pd.DataFrame) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    episodes.to_csv(out / "episodes.csv", index=False)
+    summary.to_csv(out / "summary.csv", index=False)
+    (out / "summary.json").write_text(json.dumps(summary.to_dict(orient="records"), indent=1))
+
+
+def format_table(summary: pd.DataFrame) -> str:
+    """The paper's three bars as text: collision %, speed, lane changes with 95% CIs."""
+    split = all(f"{kind}_pct" in summary for kind in CRASH_KINDS)
+    w = max(15, *(len(str(p)) + 1 for p in summary.policy))
+    lines = [
+        f"{'policy':<{w}}{'mix':>5}{'density':>9}{'radius':>8}{'episodes':>9}"
+        f"{'collisions %':>22}{'speed m/s':>20}{'lane changes':>20}"
+        + ("   crashes %: rear-end / rear-ended / lane change / other" if split else "")
+    ]
+    for r in summary.itertuples():
+        lines.append(
+            f"{r.policy:<{w}}{r.mix:>5.2f}{r.density:>9}{r.radius:>8.0f}{r.episodes:>9}"
+            f"{r.collision_pct:>8.1f} [{r.collision_lo:5.1f},{r.collision_hi:5.1f}]"
+            f"{r.avg_speed:>8.2f} [{r.speed_lo:5.2f},{r.speed_hi:5.2f}]"
+            f"{r.lane_changes:>8.2f} [{r.lane_changes_lo:5.2f},{r.lane_changes_hi:5.2f}]"
+            + (
+                "   " + " / ".join(f"{getattr(r, f'{kind}_pct'):.0f}" for kind in CRASH_KINDS)
+                if split
+                else ""
+            )
+        )
+    return "\n".join(lines)
+
+
+def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
+    """Bars per policy (one group per cell) with 95% CIs, as in the paper's figures."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = [
+        ("collision_pct", "collision_lo", "collision_hi", "collisions [% episodes]"),
+        ("avg_speed", "speed_lo", "speed_hi", "ego speed [m/s]"),
+        ("lane_changes", "lane_changes_lo", "lane_changes_hi", "lane changes / episode"),
+    ]
+    cells = summary[["mix", "density", "radius"]].drop_duplicates().to_records(index=False)
+    policies = list(dict.fromkeys(summary.policy))
+    fig, axes = plt.subplots(1, 3, figsize=(4 + 1.2 * len(cells) * len(policies) / 2, 3.8))
+    width = 0.8 / len(policies)
+    for ax, (col, lo, hi, label) in zip(axes, metrics, strict=True):
+        for p_i, pol in enumerate(policies):
+            sub = summary[summary.policy == pol].set_index(["mix", "density", "radius"])
+            vals = [sub.loc[tuple(c)] if tuple(c) in sub.index else None for c in cells]
+            x = np.arange(len(cells)) + p_i * width
+            y = [v[col] if v is not None else np.nan for v in vals]
+            err = np.array(
+                [[v[col] - v[lo], v[hi] - v[col]] if v is not None else [0, 0] for v in vals]
+            ).T
+            ax.bar(x, y, width, yerr=np.nan_to_num(err), capsize=2, label=pol)
+        ax.set_xticks(np.arange(len(cells)) + 0.4 - width / 2)
+        ax.set_xticklabels([f"{d}\nmix {m:g}\nr {r:g}" for m, d, r in cells], fontsize=7)
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
+    """Named policies of ``bgap.evaluate``: each model (named by its run folder) and baselines.
+
+    A run folder contributes the model ``checkpoint`` names (:func:`bgap.common.runs.model_file`);
+    a folder without ``model.zip`` stands for every run folder below it (a pipeline's runs:
+    one folder per arm and density, one run folder per training), each named by its path
+    below that folder."""
+    specs: dict[str, str] = {}
+    for m in map(Path, cfg.models):
+        if m.is_dir() and not (m / MODEL).exists():
+            found = sorted(
+                p.parent for p in m.rglob(MODEL) if not p.parent.name.startswith("checkpoints")
+            )
+            if not found:
+                raise FileNotFoundError(f"no {MODEL} in {m} or its subfolders")
+            # named by their path below m: <arm>/<density>/<density>-<family>-s<seed>
+            specs.update({d.relative_to(m).as_posix(): str(model_file(d, cfg.checkpoint))
+                          for d in found})  # fmt: skip
+        elif m.is_dir():
+            specs[m.name] = str(model_file(m, cfg.checkpoint))
+        else:
+            specs[m.parent.name] = str(m)
+    specs.update({b: b for b in cfg.baselines if b in BASELINES})
+    return specs
+
+
+@app("evaluate", "bgap.evaluate", SCHEMAS, "no results were written; rerun the command")
+def main(dcfg: DictConfig) -> None:
+    from bgap.common.runs import save_run_metadata
+
+    cfg: ExperimentConfig = load(dcfg)
+    out = Path(cfg.out or Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}")
+    save_run_metadata(out, dcfg)
+    episodes = evaluate(cfg, policy_specs(cfg))
+    summary = summarize(episodes)
+    write_results(out, episodes, summary)
+    plot_comparison(summary, out / "comparison.png")
+    print(format_table(summary))
+    print(f"results in {out}")
+
+
+if __name__ == "__main__":
+    main()

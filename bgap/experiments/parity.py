@@ -1,0 +1,218 @@
+"""Statistical parity of the two backends: ``python -m bgap.parity``.
+
+Runs the same number of seeded episodes on highway-env (``backend=highway``) and on the
+vectorised simulator (``backend=vector``) for several mixes, with a fixed scripted ego
+policy, and compares per class the mean vehicle speed and lane changes per vehicle-minute,
+and the ego collision rate, with 95% confidence intervals. Writes ``parity.csv`` and
+``parity.png`` to ``--out``. Both backends are measured from per-frame states in the same
+way (:func:`episode_stats`), from the trajectories :func:`bgap.sim.rollout.rollout` records.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bgap.agents.policies import rollout
+from bgap.analysis.stats import t_interval, wilson_interval
+from bgap.common.vocab import CLASSES
+
+# The scripted ego: a fixed cycle of meta-actions (indexed by the policy step), busy enough
+# to crash now and then in dense traffic.
+SCRIPT = (3, 0, 1, 2, 4, 1, 2, 0)
+
+
+class ScriptedEgo:
+    """The cycle :data:`SCRIPT`, one action per policy step, the same for every episode of a
+    batch (the rollout steps its episodes in lock step and calls :meth:`reset` per batch)."""
+
+    def __init__(self) -> None:
+        self.step = 0
+
+    def reset(self) -> None:
+        self.step = 0
+
+    def __call__(self, obs: np.ndarray) -> np.ndarray:
+        action = SCRIPT[self.step % len(SCRIPT)]
+        self.step += 1
+        return np.full(len(obs), action)
+
+
+def episode_stats(
+    speeds: np.ndarray, lanes: np.ndarray, labels: np.ndarray, dt: float, crashed: bool
+) -> dict[str, float]:
+    """Per-class mean speed and lane changes per vehicle-minute of one episode.
+
+    ``speeds`` and ``lanes`` are (frames, vehicles) for the background vehicles, ``labels``
+    their class names."""
+    minutes = (lanes.shape[0] - 1) * dt / 60.0
+    changes = (np.diff(lanes, axis=0) != 0).sum(axis=0)
+    out: dict[str, float] = {"crashed": float(crashed)}
+    for name in CLASSES:
+        cols = labels == name
+        if cols.any() and minutes > 0:
+            out[f"speed_{name}"] = float(speeds[:, cols].mean())
+            out[f"lane_changes_{name}"] = float(changes[cols].sum() / (cols.sum() * minutes))
+        else:
+            out[f"speed_{name}"] = np.nan
+            out[f"lane_changes_{name}"] = np.nan
+    return out
+
+
+def run(config: dict, seeds: list[int], backend: str) -> pd.DataFrame:
+    """The scripted ego's episodes on ``backend``, one row of :func:`episode_stats` each."""
+    result = rollout(
+        config, ScriptedEgo(), seeds, backend, batch=64 if backend == "vector" else 1, record=True
+    )
+    dt = 1.0 / float(config["simulation_frequency"])
+    rows = []
+    table = result.trajectories.sort_values(["episode", "frame", "vehicle_id"])
+    for (episode, group), crashed in zip(
+        table.groupby("episode", sort=True), result.episodes.crashed, strict=True
+    ):
+        n = group.vehicle_id.nunique()
+        speeds = group.speed.to_numpy().reshape(-1, n)[:, 1:]
+        lanes = group.lane.to_numpy(dtype=float).reshape(-1, n)[:, 1:]
+        labels = group.label.to_numpy()[1:n]
+        stats = episode_stats(speeds, lanes, labels, dt, bool(crashed))
+        rows.append({"seed": seeds[episode], **stats})
+    return pd.DataFrame(rows)
+
+
+def compare(episodes: pd.DataFrame) -> pd.DataFrame:
+    """Per mix, metric and backend: mean and 95% CI; per mix and metric: whether the
+    backends' intervals overlap."""
+    rows = []
+    metrics = [c for c in episodes.columns if c not in ("seed", "mix", "backend")]
+    for (mix, backend), group in episodes.groupby(["mix", "backend"]):
+        for metric in metrics:
+            x = group[metric].dropna().to_numpy()
+            if metric == "crashed":
+                k = int(x.sum())
+                lo, hi = wilson_interval(k, len(x))
+                mean = k / max(len(x), 1)
+            else:
+                mean = float(x.mean()) if len(x) else np.nan
+                lo, hi = t_interval(x)
+            rows.append(
+                {
+                    "mix": mix,
+                    "backend": backend,
+                    "metric": metric,
+                    "n": len(x),
+                    "mean": mean,
+                    "ci_low": lo,
+                    "ci_high": hi,
+                }
+            )
+    table = pd.DataFrame(rows)
+    wide = table.pivot_table(
+        index=["mix", "metric"], columns="backend", values=["mean", "ci_low", "ci_high"]
+    )
+    overlap = (wide[("ci_low", "vector")] <= wide[("ci_high", "highway")]) & (
+        wide[("ci_low", "highway")] <= wide[("ci_high", "vector")]
+    )
+    table = table.merge(overlap.rename("overlap").reset_index(), on=["mix", "metric"])
+    return table
+
+
+def plot(table: pd.DataFrame, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    metrics = list(dict.fromkeys(table["metric"]))
+    fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics), 3.2))
+    for ax, metric in zip(np.atleast_1d(axes), metrics, strict=True):
+        for k, (backend, color) in enumerate((("highway", "tab:blue"), ("vector", "tab:orange"))):
+            t = table[(table.metric == metric) & (table.backend == backend)].sort_values("mix")
+            x = t["mix"].to_numpy() + (k - 0.5) * 0.04
+            err = [t["mean"] - t["ci_low"], t["ci_high"] - t["mean"]]
+            ax.errorbar(x, t["mean"], yerr=err, fmt="o", color=color, label=backend, capsize=3)
+        ax.set_title(metric, fontsize=9)
+        ax.set_xlabel("mix")
+    np.atleast_1d(axes)[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    from tqdm.auto import tqdm
+
+    from bgap.common.config import validate
+    from bgap.datasets.config import compose
+    from bgap.traffic.scenario import env_config, fast_mode
+
+    parser = argparse.ArgumentParser(
+        prog="python -m bgap.parity",
+        description=__doc__.splitlines()[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--env", default="dense", help="env preset (bgap/conf/env)")
+    parser.add_argument("--mixes", default="0,0.5,1", help="aggressive fractions, comma-separated")
+    parser.add_argument("--episodes", type=int, default=200, help="episodes per backend and mix")
+    parser.add_argument(
+        "--duration", type=float, default=None, help="episode length [s]; default the env's"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="episode k is seeded seed + k")
+    parser.add_argument(
+        "--out",
+        default="outputs/parity",
+        help="folder for episodes.csv, parity.csv and parity.png (the pipeline: results/parity)",
+    )
+    parser.add_argument(
+        "--backends", default="vector,highway", help="backends to play, comma-separated"
+    )
+    parser.add_argument(
+        "--fast",
+        action="store_true",
+        help="the vector backend in the fast mode (bgap.scenario.fast_mode: 10 Hz); with "
+        "--backends vector --reuse it is compared with the stored highway-env episodes",
+    )
+    parser.add_argument(
+        "--reuse",
+        action="store_true",
+        help="keep the other backends' rows of an existing episodes.csv (same settings)",
+    )
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    if args.fast and out.resolve() == Path("results/parity").resolve():
+        from bgap.common.cli import fail
+
+        # its rows are labelled "vector": they must not replace the parity stage's results
+        fail("bgap.parity", f"--fast needs its own --out (got {args.out}): give a copy of it")
+    out.mkdir(parents=True, exist_ok=True)
+    frames = []
+    backends = args.backends.split(",")
+    if args.reuse and (out / "episodes.csv").exists():
+        old = pd.read_csv(out / "episodes.csv")
+        frames.append(old[~old.backend.isin(backends)])
+    mixes = [float(m) for m in args.mixes.split(",")]
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    for mix in tqdm(mixes, desc="mixes"):
+        overrides = [f"env={args.env}", f"mix={mix}"]
+        if args.duration:
+            overrides.append(f"env.duration={args.duration}")
+        config = env_config(validate(compose("simulate", overrides)))
+        for backend in ("vector", "highway"):
+            if backend not in backends:
+                continue
+            fast = args.fast and backend == "vector"
+            df = run(fast_mode(config) if fast else config, seeds, backend)
+            df["mix"], df["backend"] = mix, backend
+            frames.append(df)
+            pd.concat(frames).to_csv(out / "episodes.csv", index=False)
+    table = compare(pd.concat(frames))
+    table.to_csv(out / "parity.csv", index=False)
+    plot(table, out / "parity.png")
+    with pd.option_context("display.width", 160, "display.max_rows", 100):
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+
+
+if __name__ == "__main__":
+    main()

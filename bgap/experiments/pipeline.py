@@ -1,0 +1,307 @@
+"""Keeping the DVC pipeline honest about its code: each stage's code dependencies, and
+relocking stages whose code moved without changing what it computes.
+
+``python -m bgap.pipeline deps`` lists, per stage, the bgap modules its command imports
+(directly or not, function-level imports included) that ``dvc.yaml`` does not list, and the
+listed ones it no longer imports; ``--write`` makes ``dvc.yaml`` list exactly them.
+``python -m bgap.pipeline relock STAGE ...`` reruns the stages at a rehearsal budget from
+the last commit and from the working tree and records their new lock only when both wrote
+byte-identical outputs (see :func:`relock`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import re
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+"""The repository (this file is bgap/experiments/pipeline.py)."""
+
+
+def _module_file(root: Path, name: str) -> Path | None:
+    base = root / Path(*name.split("."))
+    for path in (base.with_suffix(".py"), base / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
+def _imports(root: Path, path: Path) -> set[str]:
+    """The bgap modules ``path`` imports, function-level imports included (ast, no import)."""
+    package = ".".join(path.relative_to(root).with_suffix("").parts)
+    if path.name == "__init__.py":
+        package = package.rsplit(".", 1)[0] + ".__init__"
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")[: -node.level]
+                base = ".".join([*parts, base] if base else parts)
+            names.add(base)
+            names.update(f"{base}.{a.name}" for a in node.names)
+    return {n for n in names if n == "bgap" or n.startswith("bgap.")}
+
+
+def closure(module: str, root: Path = ROOT) -> list[str]:
+    """Every file of bgap that running ``python -m <module>`` may execute: the module, what it
+    imports, transitively, and each package's ``__init__.py`` on the way (repo-relative)."""
+    todo, seen = [module], set()
+    files: set[Path] = set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        parts = name.split(".")
+        for k in range(1, len(parts)):  # the packages it lives in are imported first
+            todo.append(".".join(parts[:k]))
+        path = _module_file(root, name)
+        if path is None:
+            continue
+        files.add(path)
+        if (
+            path.name == "__init__.py"
+            and (path.parent / "__main__.py").is_file()
+            and name == module
+        ):
+            files.add(path.parent / "__main__.py")
+            todo.extend(_imports(root, path.parent / "__main__.py"))
+        todo.extend(_imports(root, path))
+    return sorted(str(p.relative_to(root)) for p in files)
+
+
+def _stage_module(cmd: str) -> str | None:
+    found = re.search(r"python -m (bgap[\w.]*)", cmd)
+    return found.group(1) if found else None
+
+
+def _is_code(dep: str) -> bool:
+    return (
+        dep.startswith("bgap/") and not dep.startswith("bgap/conf/") and not dep.endswith(".yaml")
+    )
+
+
+def code_deps(dvc_yaml: Path = ROOT / "dvc.yaml") -> dict[str, tuple[list[str], list[str]]]:
+    """Per stage of ``dvc_yaml``: (the code files its command runs, the code deps it lists)."""
+    from ruamel.yaml import YAML  # DVC's own YAML library, which keeps dvc.yaml's comments
+
+    stages = YAML().load(dvc_yaml.read_text())["stages"]
+    out = {}
+    for name, stage in stages.items():
+        body = stage.get("do", stage)
+        module = _stage_module(str(body.get("cmd", "")))
+        if module is None:
+            continue
+        listed = [str(d) for d in body.get("deps", []) if _is_code(str(d))]
+        out[name] = (closure(module, dvc_yaml.parent), listed)
+    return out
+
+
+def write_code_deps(dvc_yaml: Path = ROOT / "dvc.yaml") -> list[str]:
+    """Make every stage of ``dvc_yaml`` list exactly the code its command runs (conf files and
+    other stages' outputs kept as they are); returns the stages changed."""
+    from ruamel.yaml import YAML
+
+    yaml = YAML()
+    yaml.width = 4096
+    yaml.indent(mapping=2, sequence=4, offset=2)
+    doc = yaml.load(dvc_yaml.read_text())
+    changed = []
+    for name, (needed, listed) in code_deps(dvc_yaml).items():
+        if sorted(listed) == needed:
+            continue
+        body = doc["stages"][name].get("do", doc["stages"][name])
+        rest = [d for d in body.get("deps", []) if not _is_code(str(d))]
+        body["deps"] = [*needed, *rest]
+        changed.append(name)
+    with dvc_yaml.open("w") as f:
+        yaml.dump(doc, f)
+    return changed
+
+
+def rehearsal(params: dict) -> None:
+    """Shrink ``params`` (params.yaml) in place to a rehearsal of every stage that finishes in
+    minutes: the tiny profile and grid, one seed per training, a few trials and episodes.
+    Every stage (and every ``foreach`` item) is kept, so each has a rehearsal."""
+    params.update(profile="tiny", grid="tiny", eval_episodes=2)
+    validate = " profile.eval_every_episodes=2 profile.eval_during_training=2"
+    for item in params["study"].values():
+        item.update(seeds="[0]", settings=item["settings"] + validate)
+    params["calibrate"]["trials"] = 2
+    params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
+    params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
+    params["parity"] = {"episodes": 2, "duration": 2}
+    params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
+    search = params["cmetric_search"]
+    search.update(trials=2, radii="[null]")
+    for item in (*search["data"].values(), *search["sumo"].values()):
+        item["episodes"] = 2 if "mix" in item else 1
+
+
+def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
+    """Run ``stages`` (and what they depend on) at the rehearsal budget in ``tree``, a copy
+    of a checkout: its own git and DVC repository, so nothing outside it is touched."""
+    import os
+    import subprocess
+
+    import yaml
+
+    params = yaml.safe_load((tree / "params.yaml").read_text())
+    rehearsal(params)
+    (tree / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
+    env = {**os.environ, "PYTHONPATH": str(tree)}
+    git = ["git", "-c", "user.email=relock@bgap", "-c", "user.name=relock"]
+    with log.open("w") as out:
+        for cmd in (
+            ["rm", "-rf", ".git", ".dvc"],
+            ["git", "init", "-q"],
+            [*git, "add", "-A"],
+            [*git, "commit", "-qm", "rehearsal"],
+            [sys.executable, "-m", "dvc", "init", "-q"],
+            [sys.executable, "-m", "dvc", "repro", "--force", *stages],
+        ):
+            done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
+            if done.returncode != 0:
+                raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
+
+
+def _outputs(tree: Path, stage: str) -> list[Path]:
+    """Every file a stage writes (its outs, metrics and plots), relative to ``tree``."""
+    from dvc.repo import Repo
+
+    with Repo(str(tree)) as repo:
+        (found,) = repo.stage.collect(stage)
+        paths = [tree / str(out.def_path) for out in found.outs]
+    files: list[Path] = []
+    for path in paths:
+        files += sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    return [p.relative_to(tree) for p in files]
+
+
+def _checkout(rev: str | None, into: Path, root: Path = ROOT) -> None:
+    """The files of commit ``rev`` (None: the working tree, untracked files too, ignored ones
+    not) copied into ``into``."""
+    import shutil
+    import subprocess
+
+    if rev is not None:
+        archive = subprocess.run(["git", "archive", rev], cwd=root, capture_output=True, check=True)
+        into.mkdir(parents=True)
+        subprocess.run(["tar", "-x", "-C", str(into)], input=archive.stdout, check=True)
+        return
+    listed = (
+        subprocess.run(
+            ["git", "ls-files", "-co", "--exclude-standard", "-z"], cwd=root, capture_output=True
+        )
+        .stdout.decode()
+        .split("\0")
+    )
+    for name in filter(None, listed):
+        if (root / name).is_file():
+            (into / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(root / name, into / name)
+
+
+def _code_files(root: Path) -> list[str]:
+    return [str(p.relative_to(root)) for p in sorted((root / "bgap").rglob("*.py"))]
+
+
+def relock(
+    stages: list[str], base: str = "HEAD", work: Path | None = None, root: Path = ROOT
+) -> dict[str, list]:
+    """Record the new lock of ``stages`` whose code moved without changing what it computes.
+
+    Both the commit ``base`` and the working tree run the stages at the rehearsal budget
+    (:func:`rehearsal`) in copies of their own; only when every file each stage writes is
+    byte-identical in both is the stage's lock rewritten (DVC's ``commit`` with the outputs
+    allowed to be missing: the study's models are not on this machine). Returns, per stage,
+    the files that differ (empty: relocked). A stage whose outputs differ must be rerun
+    (``dvc repro STAGE``), not relocked.
+    """
+    import filecmp
+    import tempfile
+
+    from dvc.repo import Repo
+
+    work = Path(tempfile.mkdtemp(prefix="bgap-relock-")) if work is None else work
+    trees = {"base": work / "base", "head": work / "head"}
+    _checkout(base, trees["base"], root)
+    _checkout(None, trees["head"], root)
+    for name, tree in trees.items():
+        print(
+            f"rehearsing {', '.join(stages)} from {base if name == 'base' else 'the working tree'}"
+            f" in {tree} (log: {work / name}.log)",
+            flush=True,
+        )
+        _rehearse(tree, stages, work / f"{name}.log")
+    differs: dict[str, list] = {}
+    with Repo(str(trees["head"])) as repo:
+        expanded = [s.addressing for name in stages for s in repo.stage.collect(name)]
+    for stage in expanded:
+        files = sorted(set(_outputs(trees["base"], stage)) | set(_outputs(trees["head"], stage)))
+        differs[stage] = [
+            str(f)
+            for f in files
+            if not all((t / f).is_file() for t in trees.values())
+            or not filecmp.cmp(trees["base"] / f, trees["head"] / f, shallow=False)
+        ]
+    changed = [
+        f for f in _code_files(root) if not filecmp.cmp(root / f, trees["head"] / f, shallow=False)
+    ]
+    if changed:  # the lock records the files as they are now, not as rehearsed
+        raise RuntimeError(f"code changed during the rehearsal: {', '.join(changed[:5])}; rerun")
+    if not any(differs.values()):
+        with Repo(str(root)) as repo:
+            for stage in expanded:
+                repo.commit(stage, force=True, allow_missing=True)
+    return differs
+
+
+def main(argv: list[str] | None = None) -> None:
+
+    parser = argparse.ArgumentParser(prog="bgap.pipeline", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    deps = sub.add_parser("deps", help="compare each stage's code deps with what it imports")
+    deps.add_argument("--write", action="store_true", help="rewrite dvc.yaml's code deps")
+    lock = sub.add_parser("relock", help="rewrite stages' locks after a result-neutral change")
+    lock.add_argument(
+        "stages", nargs="+", help="stage names as in dvc.yaml (train, train@main-dense)"
+    )
+    lock.add_argument("--base", default="HEAD", help="the commit to compare with (default HEAD)")
+    lock.add_argument(
+        "--work", type=Path, help="folder for the two rehearsals (default: a new temp folder)"
+    )
+    args = parser.parse_args(argv)
+    if args.command == "relock":
+        differs = relock(args.stages, args.base, args.work)
+        bad = {s: f for s, f in differs.items() if f}
+        for stage, files in bad.items():
+            print(f"{stage}: outputs differ from {args.base}'s: {', '.join(files[:5])}")
+        if bad:
+            print("refused: no lock was changed; rerun those stages (dvc repro STAGE) instead")
+            sys.exit(1)
+        print(f"relocked {len(differs)} stage(s) in dvc.lock: {', '.join(differs)}")
+        return
+    if args.command == "deps":
+        if args.write:
+            print("dvc.yaml: code deps rewritten for", ", ".join(write_code_deps()) or "no stage")
+            return
+        stale = 0
+        for name, (needed, listed) in code_deps().items():
+            missing = sorted(set(needed) - set(listed))
+            extra = sorted(set(listed) - set(needed))
+            if missing or extra:
+                stale += 1
+                print(f"{name}: missing {missing}; not run {extra}")
+        print(f"{stale} stage(s) whose code deps differ from what their command runs")
+        sys.exit(1 if stale else 0)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,329 @@
+"""A training recipe that learns to avoid crashes: ``python -m bgap.recipe``.
+
+    python -m bgap.recipe                       # dense traffic, the paper's mixes, 40 trials
+    python -m bgap.recipe trials=60 candidates=5
+
+Three steps, all on validation episodes (seeds ``val_seed + k``; the test episodes of
+``bgap.evaluate`` are never looked at):
+
+1. **Sweep** (:mod:`bgap.experiments.sweep`, search space
+   ``bgap/experiments/sweeps/recipe.yaml``: the reward's
+   weights and DQN's discount, target update, learning rate and final exploration) with the
+   objective fixed before any result was seen: the fewest validation collisions among
+   policies whose mean speed reaches ``speed_floor`` (0.9) x the idle ego's on the same
+   episodes (``mode=constrained``). One training seed per trial.
+2. **Check**: the ``candidates`` best trials are trained again with every seed of
+   ``check_seeds`` and played on ``check_episodes`` validation episodes, beside the idle and
+   rule-based egos on the same episodes. One trial's single lucky seed does not make a
+   recipe: the chosen candidate is the best by the same rule applied to its mean over seeds.
+   With ``stock_check=true`` each candidate's default policy is trained too (stock traffic,
+   the same seeds), and candidates whose default policy misses issue 20's stock rule (under
+   half of the episodes crashed, at 0.9 x idle's speed) rank after those that meet it.
+3. **Presets**: the chosen candidate's reward and agent groups as
+   ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` under ``preset_dir``
+   (default ``<root>/presets/.../user_recipe.yaml``, then ``reward=user_recipe
+   agent=user_recipe``; the pipeline's stage writes ``bgap/conf/.../recipe.yaml``, the
+   default of ``bgap.run`` and ``bgap.train``).
+
+Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pareto.png``
+(every trial), ``candidates.csv`` (candidate x seed), ``table.md``, ``chosen.json`` and
+``learning_curves.png`` (the chosen candidate's validation curves, every seed).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import optuna
+import pandas as pd
+from omegaconf import DictConfig
+
+from bgap.analysis.stats import t_interval
+from bgap.common.config import app, load, validate
+from bgap.common.presets import selection_hint, write_preset
+from bgap.common.vocab import CRASH_KINDS
+from bgap.experiments.config import SCHEMAS, RecipeConfig, compose
+from bgap.experiments.evaluate import crash_split
+from bgap.experiments.sweep import (
+    finished,
+    objective,
+    study_name,
+    sweep,
+    validation_episodes,
+    write_outputs,
+)
+
+GROUPS = ("reward", "agent")
+"""Config groups a recipe sets (the search space's keys must stay inside them)."""
+
+
+def candidates(study: optuna.Study, k: int) -> list[optuna.trial.FrozenTrial]:
+    """The ``k`` finished trials with the lowest objective (ties: the earlier trial)."""
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    return sorted(done, key=lambda t: (t.value, t.number))[:k]
+
+
+def check_candidate(
+    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, root: Path, progress: bool = True
+) -> list[dict[str, Any]]:
+    """Train ``trial``'s settings with every check seed; one row per seed with the policy's,
+    the idle ego's and the rule-based ego's validation figures."""
+    from bgap.experiments.train import train
+
+    rows = []
+    for seed in cfg.check_seeds:
+        # The trial's settings with this run's profile: the same budget (part of the study's
+        # identity), and the periodic validation whose curves the check plots.
+        overrides = [
+            o
+            for o in trial.user_attrs["overrides"]
+            if not o.startswith(("seed=", "profile.", "profile="))
+        ]
+        budget = [f"profile.{k}={'null' if v is None else v}" for k, v in
+                  asdict(cfg.profile).items() if k != "name"]  # fmt: skip
+        tcfg = validate(
+            compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
+        )
+        run_dir = root / f"trial-{trial.number:04d}-s{seed}"
+        tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
+        train(replace(tcfg, resume=True), progress=progress)  # reused once finished
+        row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
+        for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
+            ep = validation_episodes(policy, tcfg, cfg.check_episodes)
+            prefix = "" if name == "policy" else f"{name}_"
+            row[f"{prefix}collision_pct"] = 100.0 * float(ep.crashed.mean())
+            row[f"{prefix}avg_speed"] = float(ep.avg_speed.mean())
+            if name == "policy":
+                row["lane_changes"] = float(ep.lane_changes.mean())
+                row.update(crash_split(ep))
+        if cfg.stock_check:  # the same recipe's default policy, in its own (stock) traffic
+            stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
+            train(replace(stock, resume=True), progress=progress)
+            for name, policy in (("stock", stock.run_dir), ("stock_idle", "idle")):
+                ep = validation_episodes(policy, stock, cfg.check_episodes)
+                row[f"{name}_collision_pct"] = 100.0 * float(ep.crashed.mean())
+                row[f"{name}_avg_speed"] = float(ep.avg_speed.mean())
+        rows.append(row)
+        message = (
+            f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
+            f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
+            f"{row['idle_avg_speed']:.2f} m/s)"
+        )
+        if cfg.stock_check:
+            message += (
+                f"; default in stock traffic {row['stock_collision_pct']:.0f}% at "
+                f"{row['stock_avg_speed']:.2f} m/s (idle {row['stock_idle_avg_speed']:.2f})"
+            )
+        print(message, flush=True)
+    return rows
+
+
+STOCK_KEYS = ("stock_collision_pct", "stock_avg_speed", "stock_idle_collision_pct",
+              "stock_idle_avg_speed")  # fmt: skip
+"""The default policy's figures in stock traffic (``stock_check``), per check seed."""
+
+
+def meets_stock_rule(cfg: RecipeConfig, row: Any) -> bool:
+    """Issue 20's rule for the default policy in its own traffic: fewer than
+    ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's mean speed."""
+    return bool(
+        row["stock_collision_pct"] < cfg.stock_max_collision_pct
+        and row["stock_avg_speed"] >= cfg.speed_floor * row["stock_idle_avg_speed"]
+    )
+
+
+def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
+    """Per candidate: means over seeds, 95% t intervals across seeds, the objective of the
+    means; sorted best first. With the stock check's columns, candidates whose default
+    policy meets :func:`meets_stock_rule` (on its means over seeds) come first."""
+    stock = all(key in table for key in STOCK_KEYS)
+    rows = []
+    for trial, g in table.groupby("trial"):
+        row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
+        for key in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed",
+                    "rule_collision_pct", "rule_avg_speed", "lane_changes",
+                    *(f"{kind}_pct" for kind in CRASH_KINDS),
+                    *(STOCK_KEYS if stock else ())):  # fmt: skip
+            row[key] = float(g[key].mean()) if key in g else 0.0
+        for key, top in (("collision_pct", 100.0), ("avg_speed", np.inf)):
+            lo, hi = t_interval(g[key].to_numpy())
+            row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
+        row["objective"] = objective(cfg, row["collision_pct"], row["avg_speed"],
+                                     row["idle_avg_speed"])  # fmt: skip
+        if stock:
+            row["stock_rule"] = meets_stock_rule(cfg, row)
+        rows.append(row)
+    summary = pd.DataFrame(rows)
+    if not stock:
+        return summary.sort_values(["objective", "trial"]).reset_index(drop=True)
+    summary["_misses"] = ~summary.stock_rule
+    order = summary.sort_values(["_misses", "objective", "trial"]).drop(columns="_misses")
+    return order.reset_index(drop=True)
+
+
+def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
+    """Validation collision % and speed against gradient updates, one line per seed."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run_dirs = [d for d in run_dirs if (Path(d) / "evaluations.csv").exists()]
+    if not run_dirs:  # trained without periodic validation: say so in the figure itself
+        fig, ax = plt.subplots(figsize=(6, 1.5))
+        ax.text(0.5, 0.5, "no periodic validation in these trainings\n"
+                "(profile.eval_every_episodes=0)", ha="center", va="center")  # fmt: skip
+        ax.set_axis_off()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        return
+
+    thousands = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k")
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
+    for run_dir in run_dirs:
+        ev = pd.read_csv(Path(run_dir) / "evaluations.csv")
+        label = Path(run_dir).name.rsplit("-", 1)[-1]
+        for ax, key in zip(axes, ("collision_pct", "avg_speed"), strict=True):
+            ax.plot(ev.gradient_updates, ev[key].rolling(5, min_periods=1).mean(), label=label)
+    for ax, key, label in zip(
+        axes, ("collision_pct", "avg_speed"), ("collisions [% episodes]", "mean speed [m/s]"),
+        strict=True,
+    ):  # fmt: skip
+        for name, style in (("idle", "--"), ("rule", ":")):
+            ref = pd.read_csv(Path(run_dirs[0]) / "evaluations.csv")[f"{name}_{key}"].iloc[-1]
+            ax.axhline(ref, ls=style, color="gray", label=name)
+        ax.set_xlabel("gradient updates")
+        ax.xaxis.set_major_formatter(thousands)
+        ax.set_ylabel(f"validation {label}\n(running mean of 5 evaluations)")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def markdown(cfg: RecipeConfig, summary: pd.DataFrame, params: dict[str, dict]) -> str:
+    lines = [
+        f"# Recipe check: the {len(summary)} best sweep trials, {len(cfg.check_seeds)} training "
+        f"seeds each, {cfg.check_episodes} validation episodes per seed",
+        "",
+        f"Traffic: {cfg.env.name}, mix sampling {cfg.mix_sampling}. Rule: fewest collisions "
+        f"among candidates whose mean speed is at least {cfg.speed_floor:g} x idle's. "
+        "Intervals: 95% t across training seeds.",
+        "",
+        "| trial | collisions % [95% CI] | crashes %: rear-end / rear-ended / lane change "
+        "| speed m/s [95% CI] | idle % / m/s | rule % / m/s | lane changes | settings |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in summary.itertuples():
+        settings = ", ".join(f"{k}={v:.4g}" for k, v in params[r.trial].items())
+        lines.append(
+            f"| {r.trial}{' (chosen)' if r.Index == 0 else ''} | {r.collision_pct:.1f} "
+            f"[{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}] | {r.rear_end_pct:.1f} / "
+            f"{r.rear_ended_pct:.1f} / {r.lane_change_pct:.1f} | {r.avg_speed:.2f} "
+            f"[{r.avg_speed_lo:.2f}, {r.avg_speed_hi:.2f}] | {r.idle_collision_pct:.1f} / "
+            f"{r.idle_avg_speed:.2f} | {r.rule_collision_pct:.1f} / {r.rule_avg_speed:.2f} "
+            f"| {r.lane_changes:.1f} | {settings} |"
+        )
+    if "stock_collision_pct" in summary:
+        lines += [
+            "",
+            "The default policy (the same recipe, trained in highway-env's stock traffic), on "
+            f"stock validation episodes; rule: under {cfg.stock_max_collision_pct:g}% "
+            f"collisions at {cfg.speed_floor:g} x idle's speed or more. Candidates that miss "
+            "it rank after those that meet it.",
+            "",
+            "| trial | collisions % | speed m/s | idle % / m/s | meets the rule |",
+            "|---|---|---|---|---|",
+            *(
+                f"| {r.trial} | {r.stock_collision_pct:.1f} | {r.stock_avg_speed:.2f} | "
+                f"{r.stock_idle_collision_pct:.1f} / {r.stock_idle_avg_speed:.2f} | "
+                f"{'yes' if r.stock_rule else '**no**'} |"
+                for r in summary.itertuples()
+            ),
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
+    """Sweep, check and write the chosen recipe (module docstring); returns the paths."""
+    out = Path(cfg.out or Path(cfg.root) / "recipe")
+    study = sweep(cfg, progress=progress)
+    paths = write_outputs(
+        study,
+        replace(cfg, out=str(out / "sweep"), write_preset=False),
+        chosen_label="best single-seed trial (before the check)",
+    )
+    root = Path(cfg.root) / "sweeps" / study_name(cfg) / "check"  # beside the sweep's trials
+    chosen_from = candidates(study, cfg.candidates)
+    rows = [row for t in chosen_from for row in check_candidate(cfg, t, root, progress)]
+    table = pd.DataFrame(rows)
+    table.to_csv(out / "candidates.csv", index=False)
+    summary = choose(cfg, table)
+    params = {t.number: t.params for t in chosen_from}
+    (out / "table.md").write_text(markdown(cfg, summary, params))
+    best = summary.iloc[0]
+    trial = next(t for t in chosen_from if t.number == best.trial)
+    plot_curves(
+        list(table[table.trial == best.trial].run_dir),
+        out / "learning_curves.png",
+        f"recipe (trial {trial.number}): validation during training, each seed",
+    )
+    tcfg = validate(compose("train", trial.user_attrs["overrides"]))
+    preset_dir = Path(cfg.preset_dir or Path(cfg.root) / "presets")
+    note = (
+        f"Written by python -m bgap.recipe (sweep trial {trial.number}, checked on "
+        f"{len(cfg.check_seeds)} seeds x {cfg.check_episodes} validation episodes: "
+        f"{best.collision_pct:.1f}% collisions at {best.avg_speed:.2f} m/s; idle "
+        f"{best.idle_collision_pct:.1f}% at {best.idle_avg_speed:.2f} m/s)"
+    )
+    converged = finished(study, cfg)
+    for group in GROUPS:
+        node = replace(getattr(tcfg, group), name=cfg.preset_name, converged=converged)
+        paths[f"preset_{group}"] = write_preset(
+            node, group, preset_dir / group / f"{cfg.preset_name}.yaml", note
+        )
+    chosen = {
+        "trial": trial.number,
+        "params": trial.params,
+        "sweep": {k: v for k, v in trial.user_attrs.items() if k != "overrides"},
+        "check": {k: (None if isinstance(v, float) and np.isnan(v) else v)
+                  for k, v in best.to_dict().items()},
+    }  # fmt: skip
+    (out / "chosen.json").write_text(json.dumps(chosen, indent=1, default=float))
+    paths.update(
+        candidates=out / "candidates.csv",
+        table=out / "table.md",
+        curves=out / "learning_curves.png",
+        chosen=out / "chosen.json",
+    )
+    return paths
+
+
+@app(
+    "recipe",
+    "bgap.recipe",
+    SCHEMAS,
+    "every finished sweep trial and training is kept; rerun the same command to continue",
+)
+def main(dcfg: DictConfig) -> None:
+    from bgap.common.runs import save_run_metadata
+
+    cfg: RecipeConfig = load(dcfg)
+    out = Path(cfg.out or Path(cfg.root) / "recipe")
+    save_run_metadata(out, dcfg)
+    paths = recipe(cfg)
+    print((out / "table.md").read_text())
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    for group in GROUPS:
+        path = paths[f"preset_{group}"]
+        print(f"use the preset with: {selection_hint(group, path)}")
+
+
+if __name__ == "__main__":
+    main()

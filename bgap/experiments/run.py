@@ -1,0 +1,172 @@
+"""The main job: ``python -m bgap.run env=dense mix=0.6 [profile=paper]``.
+
+Trains (or reuses, when a finished run with the same config exists under ``root``) the
+behaviour-rich policy and the default policy for the chosen density, evaluates both with
+the scripted baselines on identical seeded episodes at the chosen mix and radius (or the
+``grid``), prints a comparison table like the paper's bars and writes, under
+``<root>/results/<name>/``: ``summary.csv`` / ``.json``, ``episodes.csv``,
+``comparison.png``, ``config.yaml`` and ``command.txt``.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import ExitStack, contextmanager
+from dataclasses import asdict, replace
+from pathlib import Path
+
+import pandas as pd
+from omegaconf import DictConfig
+
+from bgap.analysis.stats import beats_idle
+from bgap.common.config import app, load
+from bgap.common.runs import VOLATILE, digest, model_file, save_run_metadata
+from bgap.common.vocab import POLICIES
+from bgap.experiments.config import SCHEMAS, ExperimentConfig
+from bgap.experiments.evaluate import (
+    crash_split,
+    evaluate,
+    format_table,
+    plot_comparison,
+    summarize,
+    write_results,
+)
+from bgap.experiments.train import run_dir_for, train, train_batched, training_config
+
+
+def results_dir(cfg: ExperimentConfig) -> Path:
+    """``out``, or a folder under ``<root>/results`` named by the main settings and a hash of
+    all of them (reward, behaviour, backend, budget, ...), so runs of other settings never
+    share a folder."""
+    if cfg.out:
+        return Path(cfg.out)
+    settings = {k: v for k, v in asdict(cfg).items() if k not in VOLATILE}
+    name = (
+        f"{cfg.env.name}-mix{cfg.mix:g}-r{cfg.radius:g}-{cfg.grid.name}-{cfg.profile.name}"
+        f"-s{cfg.seed}-{digest(settings)}"
+    )
+    return Path(cfg.root) / "results" / name
+
+
+@contextmanager
+def _exclusive(run_dir: Path):
+    """An advisory lock on a run folder, held while it is trained or checked."""
+    import fcntl
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir / ".lock", "w") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
+    start = time.perf_counter()
+    seeds = cfg.seeds or [cfg.seed]
+    pairs = [(seed, policy) for seed in seeds for policy in POLICIES]
+    configs = [training_config(replace(cfg, seed=s, resume=True), p) for s, p in pairs]
+    dirs = [run_dir_for(c) for c in configs]
+    # Parallel jobs of a multirun can need the same model (the default policy of a density):
+    # one trains it, the others wait for it and reuse it. (Locks taken in one order.)
+    with ExitStack() as locks:
+        for d in sorted(set(dirs)):
+            locks.enter_context(_exclusive(d))
+        for (seed, policy), d in zip(pairs, dirs, strict=True):
+            cached = (d / "model.zip").exists()
+            print(f"[{policy} s{seed}] {'reusing' if cached else 'training'} {d}")
+        # resume=true: a training this command started and was interrupted continues
+        if cfg.learner == "batched":  # every training of the command in one learner
+            dirs = train_batched(configs)
+        else:
+            dirs = [train(c) for c in configs]
+    models = {}
+    for (seed, policy), d in zip(pairs, dirs, strict=True):
+        # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.
+        name = policy if len(seeds) == 1 else f"{cfg.env.name}-{policy}-s{seed}"
+        models[name] = str(model_file(d, cfg.checkpoint))
+    out = results_dir(cfg)
+    if dcfg is not None:
+        save_run_metadata(out, dcfg)
+    policies = {**models, **{b: b for b in cfg.baselines}}
+    episodes = evaluate(cfg, policies)
+    summary = summarize(episodes)
+    write_results(out, episodes, summary)
+    title = f"{cfg.env.name}, behaviour {cfg.behavior.name}, {cfg.profile.name} profile"
+    plot_comparison(summary, out / "comparison.png", title)
+    print(format_table(summary))
+    compared = summary  # what the idle flags read: the seed-level table with several seeds
+    if len(seeds) > 1:
+        compared = across = seed_summary(episodes)
+        across.to_csv(out / "seeds.csv", index=False)
+        plot_comparison(across, out / "comparison_seeds.png", f"{title}, {len(seeds)} seeds")
+        print(f"\nacross {len(seeds)} training seeds (mean and 95% interval over seeds):")
+        print(format_table(across))
+    for line in idle_flags(compared, cfg):
+        print(line)
+    print(f"results in {out} ({time.perf_counter() - start:.0f} s)")
+    return out
+
+
+def seed_summary(episodes):
+    """Per policy family and cell, the mean over training seeds of each figure and its 95%
+    interval across seeds (:func:`bgap.analysis.figures.cell_stats`), in :func:`summarize`'s
+    columns."""
+    from bgap.analysis.figures import cell_stats, parse_policies
+
+    parsed = parse_policies(episodes)
+    stats, _ = cell_stats(parsed)
+    renamed = stats.rename(
+        columns={
+            "family": "policy",
+            "collision_pct_lo": "collision_lo",
+            "collision_pct_hi": "collision_hi",
+            "avg_speed_lo": "speed_lo",
+            "avg_speed_hi": "speed_hi",
+        }
+    )
+    keys = list(zip(stats.family, stats.density, stats.mix, stats.radius, strict=True))
+    pooled = parsed.groupby(["family", "density", "mix", "radius"])
+    renamed["episodes"] = pooled.size().reindex(keys).to_numpy()  # all seeds' episodes
+    split = pooled.apply(lambda g: pd.Series(crash_split(g))).reindex(keys)
+    for column in split:
+        renamed[column] = split[column].to_numpy()
+    return renamed
+
+
+def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
+    """A line per trained policy evaluated in its own training traffic that does not beat
+    idle there (fewer collisions at a mean speed of at least 90% of idle's): such a policy is
+    flagged, never silently compared."""
+    lines = []
+    idle = summary[summary.policy == "idle"].set_index(["mix", "density", "radius"])
+    for r in summary[summary.policy.str.contains("|".join(POLICIES))].itertuples():
+        own = ("default" in r.policy and cfg.behavior.name == "stock") or (
+            "behavior_rich" in r.policy and cfg.mix_sampling == "fixed" and r.mix == cfg.mix
+        )
+        key = (r.mix, r.density, r.radius)
+        if not own or key not in idle.index:
+            continue
+        i = idle.loc[key]
+        beats = beats_idle(r.collision_pct, r.avg_speed, i.collision_pct, i.avg_speed)
+        verdict = "beats idle" if beats else "FLAGGED: does not beat idle"
+        lines.append(
+            f"{r.policy} in its own traffic (mix {r.mix:g}): {r.collision_pct:.1f}% collisions, "
+            f"{r.avg_speed:.2f} m/s; idle {i.collision_pct:.1f}%, {i.avg_speed:.2f} m/s: {verdict}"
+        )
+    return lines
+
+
+@app(
+    "run",
+    "bgap.run",
+    SCHEMAS,
+    "finished trainings are kept and reused by a rerun of the same command",
+)
+def main(dcfg: DictConfig) -> None:
+    run(load(dcfg), dcfg)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,386 @@
+"""Optuna sweeps over reward weights or DQN hyperparameters: ``python -m bgap.sweep``.
+
+    python -m bgap.sweep sweep=reward                     # multi-objective (Pareto front)
+    python -m bgap.sweep sweep=reward mode=single         # scalarised, with pruning
+    python -m bgap.sweep sweep=dqn env=dense trials=40
+    python -m bgap.sweep storage=journal:outputs/sweeps/journal.log   # start N times: N workers
+
+Each trial composes its config with Hydra's compose API (the Hydra Optuna sweeper plugin
+does not work with Optuna 5), trains a policy on the profile's budget (its own run folder
+with the resolved config and TensorBoard logs), evaluates it greedily on fixed seeds and
+reports collision % (minimised) and average speed (maximised). ``mode=single`` minimises
+``collision % - speed_weight * speed`` and prunes trials whose intermediate evaluations are
+poor. The search space is the packaged ``bgap/experiments/sweeps/<sweep>.yaml``. The chosen
+parameters
+are written as a preset (default ``<root>/presets/<group>/user_tuned.yaml``, then
+``reward=user_tuned`` or ``agent=user_tuned``), the Pareto front to ``<out>/pareto.csv`` and
+``pareto.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import optuna
+import pandas as pd
+import yaml
+from omegaconf import DictConfig
+from stable_baselines3.common.callbacks import BaseCallback
+
+from bgap.agents.policies import baseline, greedy, rollout
+from bgap.analysis.stats import constrained_score
+from bgap.common.config import app, load, validate
+from bgap.common.errors import ConfigError
+from bgap.common.presets import selection_hint, write_preset
+from bgap.common.runs import VOLATILE, digest
+from bgap.common.studies import open_storage, sqlite_url
+from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
+from bgap.traffic.scenario import env_config
+
+SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
+"""The packaged Optuna search spaces of ``bgap.sweep``."""
+
+
+def load_space(name: str) -> dict[str, dict[str, Any]]:
+    """The search space ``sweeps/<name>.yaml``: {override key: {low, high[, log, int]} or
+    {choices}}; checked against the experiment schema so a typo fails before training."""
+    path = SWEEPS_DIR / f"{name}.yaml"
+    if not path.exists():
+        options = sorted(p.stem for p in SWEEPS_DIR.glob("*.yaml"))
+        raise ConfigError(f"sweep={name!r} has no search space {path}; use one of {options}")
+    space = yaml.safe_load(path.read_text())["params"]
+    probe = ExperimentConfig()  # the schema's defaults: no preset file needed
+    for key, spec in space.items():
+        group, _, leaf = key.partition(".")
+        if not leaf or not hasattr(getattr(probe, group, None), leaf):
+            raise ConfigError(f"sweeps/{name}.yaml: {key!r} is not a config key")
+        ok = "choices" in spec or ("low" in spec and "high" in spec and spec["low"] < spec["high"])
+        if not ok:
+            raise ConfigError(f"sweeps/{name}.yaml: {key} needs low < high or choices")
+    return space
+
+
+def suggest(trial: optuna.Trial, space: dict[str, dict[str, Any]]) -> dict[str, Any]:
+    values = {}
+    for key, spec in space.items():
+        if "choices" in spec:
+            values[key] = trial.suggest_categorical(key, spec["choices"])
+        elif spec.get("int"):
+            values[key] = trial.suggest_int(
+                key, int(spec["low"]), int(spec["high"]), log=bool(spec.get("log"))
+            )
+        else:
+            values[key] = trial.suggest_float(
+                key, spec["low"], spec["high"], log=bool(spec.get("log"))
+            )
+    return values
+
+
+STUDY_VOLATILE = (
+    *VOLATILE, "trials", "storage", "study", "write_preset", "preset", "seeds",
+    # bgap.recipe's settings of what follows the sweep
+    "candidates", "check_seeds", "check_episodes", "preset_dir", "preset_name",
+)  # fmt: skip
+"""Sweep settings that do not change a trial's value (the trial budget may grow on a rerun)."""
+
+
+def study_name(cfg: SweepConfig) -> str:
+    """``study``, or the search, mode and density with a hash of every setting that changes a
+    trial's value (budget, traffic, reward, evaluation, ...): sweeps of other settings never
+    pool their trials."""
+    settings = {k: v for k, v in asdict(cfg).items() if k not in STUDY_VOLATILE}
+    return cfg.study or f"{cfg.sweep}-{cfg.mode}-{cfg.env.name}-{digest(settings)}"
+
+
+class PruneCallback(BaseCallback):
+    """Greedy evaluation every ``every`` steps, reported to the trial; stops a poor trial."""
+
+    def __init__(self, trial: optuna.Trial, cfg: ExperimentConfig, every: int, score) -> None:
+        super().__init__()
+        self.trial, self.cfg, self.every, self.score = trial, cfg, every, score
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps and self.num_timesteps % self.every < self.training_env.num_envs:
+            value = self.score(self.model, self.cfg, episodes=10)
+            self.trial.report(value, self.num_timesteps)
+            if self.trial.should_prune():
+                raise optuna.TrialPruned()
+        return True
+
+
+def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
+    """Collision % and average speed of the greedy model on the validation episodes of its
+    own training traffic (the mix drawn as in training)."""
+    return _validation(greedy(model), cfg, episodes)
+
+
+def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.DataFrame:
+    """``policy`` on the first ``episodes`` validation episodes (seeds ``val_seed + k``) of
+    ``cfg``'s training traffic, its mix drawn as in training."""
+    from bgap.experiments.train import training_config
+
+    cfg = training_config(cfg)
+    seeds = range(cfg.val_seed, cfg.val_seed + episodes)
+    return rollout(env_config(cfg, cfg.mix_sampling), policy, seeds, cfg.backend).episodes
+
+
+def _validation(policy, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
+    rows = validation_episodes(policy, cfg, episodes)
+    return 100.0 * float(rows.crashed.mean()), float(rows.avg_speed.mean())
+
+
+def objective(cfg: SweepConfig, crash: float, speed: float, idle_speed: float) -> float:
+    """The single-valued objective (minimised). ``single``: collision % - speed_weight *
+    speed. ``constrained``: collision %, for a policy whose mean speed reaches ``speed_floor``
+    x idle's on the same episodes; below it, 100 + the shortfall in % of that floor, so any
+    policy fast enough ranks above any that is not (safety bought by crawling is no win)."""
+    if cfg.mode == "single":
+        return crash - cfg.speed_weight * speed
+    return constrained_score(crash, speed, idle_speed, cfg.speed_floor)
+
+
+def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) -> Any:
+    from bgap.agents.dqn import DQN
+    from bgap.experiments.train import train
+
+    values = suggest(trial, space)
+    budget = [  # the sweep's own profile values (profile.train_steps=... on its command line)
+        f"profile.{k}={'null' if v is None else v}" for k, v in asdict(cfg.profile).items()
+    ]
+    overrides = [
+        f"env={cfg.env.name}",
+        f"behavior={cfg.behavior.name}",
+        f"reward={cfg.reward.name}",
+        f"agent={cfg.agent.name}",
+        f"backend={cfg.backend}",
+        f"seed={cfg.seed}",
+        f"policy={cfg.policy}",  # policy=default: every trial trains in stock traffic
+        f"mix={cfg.mix}",
+        f"mix_sampling={cfg.mix_sampling}",
+        f"profile={cfg.profile.name}",
+        *budget,
+        *cfg.overrides,
+        *(f"{k}={v}" for k, v in values.items()),
+    ]
+    tcfg = validate(compose("train", overrides))
+    run_dir = root / study_name(cfg) / f"trial-{trial.number:04d}"
+    tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
+    trial.set_user_attr("run_dir", str(run_dir))
+    trial.set_user_attr("overrides", overrides)
+
+    def score(model, c, episodes):
+        idle = _validation(baseline("idle"), c, episodes)[1]
+        return objective(cfg, *evaluate_model(model, c, episodes), idle)
+
+    callbacks = []
+    if cfg.mode != "multi":
+        every = cfg.prune_every or max(tcfg.profile.train_steps // 4, 1)
+        callbacks.append(PruneCallback(trial, tcfg, every, score))
+    train(tcfg, progress=False, callbacks=callbacks)
+    model = DQN.load(run_dir / "model.zip", device="cpu")
+    crash, speed = evaluate_model(model, tcfg, cfg.sweep_eval_episodes)
+    idle_crash, idle_speed = _validation(baseline("idle"), tcfg, cfg.sweep_eval_episodes)
+    for key, value in (
+        ("collision_pct", crash),
+        ("avg_speed", speed),
+        ("idle_collision_pct", idle_crash),
+        ("idle_avg_speed", idle_speed),
+    ):
+        trial.set_user_attr(key, value)
+    if cfg.mode == "multi":
+        return crash, speed
+    return objective(cfg, crash, speed, idle_speed)
+
+
+def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
+    """Run (or continue) the study until it holds ``cfg.trials`` finished trials."""
+    from optuna.study import MaxTrialsCallback
+    from optuna.trial import TrialState
+
+    space = load_space(cfg.sweep)
+    root = Path(cfg.root) / "sweeps"
+    root.mkdir(parents=True, exist_ok=True)
+    storage = open_storage(cfg.storage or sqlite_url(root))
+    multi = cfg.mode == "multi"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        study = optuna.create_study(
+            study_name=study_name(cfg),
+            storage=storage,
+            directions=["minimize", "maximize"] if multi else None,
+            direction=None if multi else "minimize",
+            sampler=optuna.samplers.TPESampler(seed=None),  # workers must not repeat draws
+            pruner=None if multi else optuna.pruners.MedianPruner(n_startup_trials=5),
+            load_if_exists=True,
+        )
+    finished = (TrialState.COMPLETE, TrialState.PRUNED)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study.optimize(
+        lambda t: run_trial(t, cfg, space, root),
+        n_trials=max(cfg.trials - len(study.get_trials(deepcopy=False, states=finished)), 0),
+        callbacks=[MaxTrialsCallback(cfg.trials, states=finished)],
+        show_progress_bar=progress,
+        catch=(ValueError,),
+    )
+    return study
+
+
+def finished(study: optuna.Study, cfg: SweepConfig) -> bool:
+    """Whether the study holds its ``cfg.trials`` finished (complete or pruned) trials: a
+    sweep stopped before (failed trials, an interruption) writes presets marked
+    ``converged: false`` and says so."""
+    done = (optuna.trial.TrialState.COMPLETE, optuna.trial.TrialState.PRUNED)
+    count = len(study.get_trials(deepcopy=False, states=done))
+    if count < cfg.trials:
+        warnings.warn(
+            f"the study {study.study_name} holds {count} of its {cfg.trials} trials: its "
+            "preset is marked converged: false; rerun the same command to finish it",
+            stacklevel=2,
+        )
+    return count >= cfg.trials
+
+
+def chosen_trial(study: optuna.Study, cfg: SweepConfig) -> optuna.trial.FrozenTrial:
+    """Single and constrained mode: the best trial. Multi: the Pareto trial with the best
+    scalarisation."""
+    if cfg.mode != "multi":
+        return study.best_trial
+    front = study.best_trials
+    return min(front, key=lambda t: t.values[0] - cfg.speed_weight * t.values[1])
+
+
+def write_outputs(
+    study: optuna.Study, cfg: SweepConfig, chosen_label: str = "chosen"
+) -> dict[str, Path]:
+    """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
+    chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out = Path(cfg.out or Path(cfg.root) / "sweeps" / study_name(cfg))
+    out.mkdir(parents=True, exist_ok=True)
+    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    table = pd.DataFrame(
+        [
+            {
+                "trial": t.number,
+                **t.params,
+                "value": t.value if len(t.values) == 1 else None,
+                **{
+                    k: t.user_attrs.get(k)
+                    for k in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed")
+                },
+                "run_dir": t.user_attrs.get("run_dir"),
+            }
+            for t in done
+        ]
+    )
+    table.to_csv(out / "trials.csv", index=False)
+    chosen = chosen_trial(study, cfg)
+    paths = {"trials": out / "trials.csv"}
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    ax.scatter(table.avg_speed, table.collision_pct, c="lightgray", label="trials")
+    if cfg.mode == "multi":
+        front = {t.number for t in study.best_trials}
+        table["pareto"] = table.trial.isin(front)
+        table[table.pareto].to_csv(out / "pareto.csv", index=False)
+        p = table[table.pareto].sort_values("avg_speed")
+        ax.plot(p.avg_speed, p.collision_pct, "o-", color="tab:red", label="Pareto front")
+        paths["pareto"] = out / "pareto.csv"
+    if "idle_avg_speed" in table and table.idle_avg_speed.notna().any():
+        idle_speed = float(table.idle_avg_speed.mean())
+        ax.scatter(
+            [idle_speed], [float(table.idle_collision_pct.mean())], marker="s", color="tab:blue",
+            label="idle", zorder=4,
+        )  # fmt: skip
+        if cfg.mode == "constrained":
+            ax.axvline(cfg.speed_floor * idle_speed, ls="--", color="tab:blue", lw=0.8,
+                       label=f"{cfg.speed_floor:g} x idle speed")  # fmt: skip
+    ax.scatter(
+        [chosen.user_attrs["avg_speed"]],
+        [chosen.user_attrs["collision_pct"]],
+        marker="*",
+        s=200,
+        color="k",
+        label=chosen_label,
+        zorder=5,
+    )
+    ax.set_xlabel("validation mean speed m/s (maximise)")
+    ax.set_ylabel("validation collision % (minimise)")
+    ax.set_title(f"{cfg.sweep} sweep ({cfg.mode}), {cfg.env.name}")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "pareto.png", dpi=120)
+    plt.close(fig)
+    paths["plot"] = out / "pareto.png"
+    if cfg.write_preset:
+        paths.update({f"preset_{g}": path for g, path in write_tuned(cfg, study, chosen).items()})
+    (out / "chosen.json").write_text(
+        json.dumps({"trial": chosen.number, "params": chosen.params, **chosen.user_attrs}, indent=1)
+    )
+    return paths
+
+
+def write_tuned(
+    cfg: SweepConfig, study: optuna.Study, trial: optuna.trial.FrozenTrial
+) -> dict[str, Path]:
+    """The chosen trial's config groups (reward, agent) as presets: ``sweep.preset`` for a
+    one-group search, else ``<root>/presets/<group>/user_tuned.yaml`` per group; marked
+    ``converged: false`` where the study has not :func:`finished`."""
+    groups = sorted({key.split(".")[0] for key in trial.params})
+    if cfg.preset and len(groups) > 1:
+        raise ConfigError(
+            f"preset={cfg.preset} names one file but sweep={cfg.sweep} tunes {groups}; "
+            "leave preset unset (one user_tuned.yaml per group under <root>/presets)"
+        )
+    tcfg = validate(compose("train", [*trial.user_attrs["overrides"]]))
+    note = (
+        f"Written by python -m bgap.sweep sweep={cfg.sweep} mode={cfg.mode} "
+        f"(trial {trial.number}: {json.dumps(trial.user_attrs.get('collision_pct'))}% "
+        f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)"
+    )
+    paths, converged = {}, finished(study, cfg)
+    for group in groups:
+        path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
+        node = replace(getattr(tcfg, group), name=path.stem, converged=converged)
+        paths[group] = write_preset(node, group, path, note)
+    return paths
+
+
+@app(
+    "sweep",
+    "bgap.sweep",
+    SCHEMAS,
+    "every finished trial is kept in the Optuna study; rerun the same command to continue",
+)
+def main(dcfg: DictConfig) -> None:
+    cfg: SweepConfig = load(dcfg)
+    study = sweep(cfg)
+    paths = write_outputs(study, cfg)
+    chosen = chosen_trial(study, cfg)
+    print(
+        json.dumps(
+            {
+                "chosen_trial": chosen.number,
+                "params": chosen.params,
+                **{k: v for k, v in chosen.user_attrs.items() if k != "overrides"},
+            },
+            indent=1,
+            default=str,
+        )
+    )
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    for name, path in paths.items():
+        if name.startswith("preset_"):
+            print(f"use the preset with: {selection_hint(path.parent.name, path)}")
+
+
+if __name__ == "__main__":
+    main()

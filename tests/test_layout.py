@@ -1,0 +1,148 @@
+"""The package's shape: the environment registers on ``import bgap``, one ``bgap`` command
+reaches every command, the layering holds, and the pipeline lists the code it runs."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+IMPORTS_TOOL = ROOT.parent / "shared" / "tools" / "imports.py"
+
+
+def _python(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+
+
+def test_import_bgap_registers_the_environment_and_loads_no_simulator_learner_or_hydra():
+    done = _python(
+        "import sys, bgap, gymnasium as gym;"
+        "heavy = [m for m in ('highway_env', 'torch', 'hydra', 'bgap.envs', 'bgap.sim')"
+        " if m in sys.modules]; assert not heavy, heavy;"
+        "assert 'bgap/BehaviorHighway-v0' in gym.registry;"
+        "env = gym.make('bgap/BehaviorHighway-v0');"
+        "print(type(env.unwrapped).__module__)"
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "bgap.envs.highway"
+
+
+def test_gymnasium_module_prefixed_id_works_without_an_import():
+    done = _python(
+        "import gymnasium as gym; env = gym.make('bgap:bgap/BehaviorHighway-v0');"
+        "obs, _ = env.reset(seed=0); print(obs.shape)"
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().startswith("(")
+
+
+def test_bgap_alone_lists_every_command_and_an_unknown_one_is_refused():
+    from bgap.__main__ import COMMANDS
+
+    done = subprocess.run(
+        [sys.executable, "-m", "bgap"], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert done.returncode == 0, done.stderr
+    listed = {line.split()[0] for line in done.stdout.splitlines() if line.startswith("  ")}
+    assert listed == set(COMMANDS)
+    for module, _ in COMMANDS.values():  # every command's module exists
+        assert (ROOT / Path(*module.split("."))).with_suffix(".py").exists() or (
+            ROOT / Path(*module.split(".")) / "__main__.py"
+        ).exists(), module
+    bad = subprocess.run(
+        [sys.executable, "-m", "bgap", "trian"], cwd=ROOT, capture_output=True, text=True
+    )
+    assert bad.returncode == 2 and "unknown command 'trian'" in bad.stderr
+
+
+def test_bgap_command_runs_the_same_program_as_python_m():
+    """``bgap simulate ...`` and ``python -m bgap.simulate ...`` refuse a bad value alike."""
+    outs = [
+        subprocess.run(
+            [sys.executable, "-m", *prog, "mix=2"], cwd=ROOT, capture_output=True, text=True
+        )
+        for prog in (["bgap", "simulate"], ["bgap.simulate"])
+    ]
+    assert [o.returncode for o in outs] == [2, 2]
+    assert outs[0].stderr == outs[1].stderr and "mix" in outs[0].stderr
+
+
+def test_top_level_holds_at_most_ten_packages_and_short_shims():
+    entries = [p for p in (ROOT / "bgap").iterdir() if p.name != "__pycache__"]
+    packages = [p.name for p in entries if p.is_dir() and p.name != "conf"]
+    assert len(packages) <= 10, packages
+    for module in entries:
+        if module.suffix == ".py" and module.name not in ("__init__.py", "__main__.py"):
+            assert len(module.read_text().splitlines()) <= 5, module.name
+
+
+@pytest.mark.skipif(not IMPORTS_TOOL.exists(), reason="needs ../shared/tools/imports.py")
+def test_no_import_cycle_and_no_forbidden_edge():
+    """The layering written in pyproject.toml ([tool.imports]) and no cycle between modules
+    or packages, function-level imports counted."""
+    done = subprocess.run(
+        [sys.executable, str(IMPORTS_TOOL), "--packages"], cwd=ROOT, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stdout[-3000:]
+    assert "0 cycle(s), 0 package cycle edge(s), 0 forbidden edge(s)" in done.stdout
+
+
+def test_every_stage_lists_exactly_the_code_its_command_runs(tmp_path):
+    """dvc.yaml's code deps are the import closure of each stage's command, so a change to
+    any module a stage runs reruns (or relocks) it, and no other change does."""
+    from bgap.experiments.pipeline import closure, code_deps
+
+    stale = {
+        name: (sorted(set(needed) - set(listed)), sorted(set(listed) - set(needed)))
+        for name, (needed, listed) in code_deps().items()
+        if sorted(listed) != needed
+    }
+    assert not stale, stale
+    # the closure follows imports: a hand-made package where b imports c inside a function
+    pkg = tmp_path / "bgap"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "sub" / "__init__.py").write_text("")
+    (pkg / "a.py").write_text("from bgap.sub import b\n")
+    (pkg / "sub" / "b.py").write_text("def f():\n    from . import c\n")
+    (pkg / "sub" / "c.py").write_text("import os\n")
+    (pkg / "unused.py").write_text("")
+    assert closure("bgap.a", tmp_path) == [
+        "bgap/__init__.py", "bgap/a.py", "bgap/sub/__init__.py", "bgap/sub/b.py", "bgap/sub/c.py"
+    ]  # fmt: skip
+
+
+@pytest.mark.slow
+def test_relock_refuses_a_stage_whose_rehearsal_outputs_changed(tmp_path):
+    """A change that alters what the parity stage writes is refused (the lock untouched);
+    the unchanged code is relocked. About two minutes: two rehearsals per case."""
+    from bgap.experiments.pipeline import relock
+
+    repo = tmp_path / "repo"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(repo)], check=True)
+    lock = (repo / "dvc.lock").read_text()
+    assert relock(["parity"], "HEAD", tmp_path / "same", repo) == {"parity": []}
+    parity = repo / "bgap/experiments/parity.py"
+    text = parity.read_text()
+    changed = text.replace(
+        'table.to_csv(out / "parity.csv"', 'table.round(2).to_csv(out / "parity.csv"'
+    )
+    assert changed != text
+    parity.write_text(changed)  # the same stage, other numbers in parity.csv
+    relocked = (repo / "dvc.lock").read_text()
+    differs = relock(["parity"], "HEAD", tmp_path / "changed", repo)
+    assert differs["parity"], "a changed output went unnoticed"
+    assert (repo / "dvc.lock").read_text() == relocked  # refused: nothing written
+    assert differs["parity"] == ["results/parity/parity.csv"]
+    # the first relock rewrote the stage's code deps only: its outputs' hashes are the same
+    import yaml
+
+    def outs(text: str) -> list:
+        return yaml.safe_load(text)["stages"]["parity"]["outs"]
+
+    assert outs(lock) == outs(relocked)
