@@ -179,8 +179,9 @@ def test_batched_training_writes_sb3_run_folders_and_resumes_a_kill_exactly(tmp_
     middle and a rerun with resume=true ends every member where an uninterrupted run does."""
     from bgap.common.config import validate
     from bgap.common.errors import ConfigError
+    from bgap.experiments.batched import train_batched
     from bgap.experiments.evaluate import evaluate
-    from bgap.experiments.train import member_configs, train_batched
+    from bgap.experiments.training import member_configs
     from tests.configs import compose
 
     def configs(name: str, *more: str):
@@ -241,7 +242,7 @@ def test_batched_training_writes_sb3_run_folders_and_resumes_a_kill_exactly(tmp_
 def test_bad_batches_are_clear_errors():
     from bgap.common.config import validate
     from bgap.common.errors import ConfigError
-    from bgap.experiments.train import train_batched
+    from bgap.experiments.batched import train_batched
     from tests.configs import compose
 
     with pytest.raises(ConfigError, match="at least one"):
@@ -264,7 +265,8 @@ def test_a_whole_training_on_sb3s_random_streams_is_sb3s_training(tmp_path):
     import pickle
 
     from bgap.common.config import validate
-    from bgap.experiments.train import train, train_batched
+    from bgap.experiments.batched import train_batched
+    from bgap.experiments.train import train
     from tests.configs import compose
 
     overrides = ["profile=quick", "profile.train_steps=800", "profile.eval_every_episodes=0",

@@ -6,14 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bgap.analysis.figures import (
-    ablation_table,
-    cell_stats,
-    claims,
-    duplicates,
-    own_traffic,
-    parse_policies,
-)
+from bgap.analysis.claims import ablation_table, claims, own_traffic
+from bgap.analysis.episodes import cell_stats, duplicates, parse_policies
 from bgap.common.vocab import PAPER_MIXES
 
 

@@ -365,7 +365,7 @@ def _check_best_checkpoints(cfg, runs: Path) -> None:
     unless checkpoint=last."""
     from bgap.experiments.evaluate import policy_specs
     from bgap.experiments.sweep import validation_episodes
-    from bgap.experiments.train import training_config
+    from bgap.experiments.training import training_config
 
     kept = sorted(p.parent for p in runs.glob("*/best.json"))
     assert len(kept) == 4

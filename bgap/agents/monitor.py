@@ -31,6 +31,7 @@ import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import greedy, rollout
+from bgap.common.plotting import pyplot
 from bgap.common.runs import BEST_MODEL
 from bgap.sim.rollout import EpisodeStats
 
@@ -228,10 +229,7 @@ def plot_learning_curves(run_dir: Path) -> Path | None:
     path = Path(run_dir) / "evaluations.csv"
     if not path.exists():
         return None
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     ev = pd.read_csv(path)
     x = ev["gradient_updates"] if "gradient_updates" in ev else ev["steps"]

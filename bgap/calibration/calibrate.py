@@ -32,8 +32,9 @@ from omegaconf import DictConfig
 from bgap.agents.policies import rollout
 from bgap.calibration.config import SCHEMAS, CalibrateAppConfig
 from bgap.common.config import app, load
+from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.studies import open_storage, sqlite_url
+from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
 from bgap.traffic.scenario import env_config, env_preset
@@ -162,21 +163,12 @@ def calibrate_class(
 ) -> optuna.Study:
     """Run (or continue) the study of class ``label`` until it holds ``calibrate.trials``
     completed trials (in ``storage``, default: the config's)."""
-    from optuna.study import MaxTrialsCallback
-    from optuna.trial import TrialState
-
     c = cfg.calibrate
     storage = storage or open_storage(storage_url(cfg), key="calibrate.storage")
-    study = optuna.create_study(
-        study_name=study_name(cfg, label),
-        storage=storage,
-        direction="minimize",
-        sampler=optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10),
-        load_if_exists=True,
+    sampler = optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10)
+    study = resumable_study(
+        storage, study_name(cfg, label), ["minimize"], sampler, start=start_params(cfg, label)
     )
-    start = start_params(cfg, label)
-    if start is not None and not study.trials:
-        study.enqueue_trial(start)
 
     def objective(trial: optuna.Trial) -> float:
         params = {k: trial.suggest_float(k, lo, hi) for k, (lo, hi) in c.bounds.searched().items()}
@@ -190,17 +182,7 @@ def calibrate_class(
             trial.set_user_attr(key, stats[key])
         return objective_value(cfg, label, stats)
 
-    done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
-    remaining = c.trials - done
-    if remaining > 0:
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
-        study.optimize(
-            objective,
-            n_trials=remaining,
-            callbacks=[MaxTrialsCallback(c.trials, states=(TrialState.COMPLETE,))],
-            show_progress_bar=progress,
-        )
-    return study
+    return run_until(study, objective, c.trials, progress)
 
 
 def write_outputs(
@@ -210,10 +192,7 @@ def write_outputs(
     stats: dict[str, Any],
 ) -> dict[str, Any]:
     """Table I beside ours, the scores the preset reaches, and the two plots."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     c = cfg.calibrate
     out = report_dir(cfg)

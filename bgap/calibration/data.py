@@ -58,8 +58,9 @@ import pandas as pd
 
 from bgap.agents.policies import rollout
 from bgap.calibration.config import CalibrateAppConfig
+from bgap.calibration.data_report import write_report
 from bgap.calibration.kinematics import (
-    STATISTICS,
+    ALL_STATISTICS,
     Scene,
     class_samples,
     compare,
@@ -68,13 +69,10 @@ from bgap.calibration.kinematics import (
 )
 from bgap.cmetric.io import TrajectoryError, load_trajectories
 from bgap.common.presets import write_preset
-from bgap.common.studies import open_storage, plot_convergence
-from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
+from bgap.common.studies import open_storage, resumable_study, run_until
+from bgap.common.vocab import CLASSES
 from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
 from bgap.traffic.scenario import env_config, env_preset
-
-ALL_STATISTICS = ("score", *STATISTICS)
-"""What the objective compares, per class: the CMetric score and the kinematic statistics."""
 
 
 @dataclass
@@ -292,27 +290,17 @@ def fit(
 ) -> optuna.Study:
     """Run (or continue) the study until it holds ``calibrate.trials`` completed trials
     (``reference``: :func:`reference_distances`, for the penalty)."""
-    from optuna.study import MaxTrialsCallback
-    from optuna.trial import TrialState
-
     c = cfg.calibrate
-    study = optuna.create_study(
-        study_name=study_name(cfg),
-        storage=storage,
-        direction="minimize",
-        sampler=optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10),
-        load_if_exists=True,
-    )
     bounds = c.bounds.searched()
-    if not study.trials:  # the starting behaviour preset first, inside the bounds
-        start = {}
-        for cls in c.classes:
-            preset = asdict(getattr(cfg.behavior, cls))
-            for key, (lo, hi) in bounds.items():
-                value = preset.get(key)
-                value = (lo + hi) / 2 if value is None else value
-                start[f"{cls}.{key}"] = float(min(max(value, lo), hi))
-        study.enqueue_trial(start)
+    start = {}  # the starting behaviour preset first, inside the bounds
+    for cls in c.classes:
+        preset = asdict(getattr(cfg.behavior, cls))
+        for key, (lo, hi) in bounds.items():
+            value = preset.get(key)
+            value = (lo + hi) / 2 if value is None else value
+            start[f"{cls}.{key}"] = float(min(max(value, lo), hi))
+    sampler = optuna.samplers.TPESampler(seed=c.sampler_seed, n_startup_trials=10)
+    study = resumable_study(storage, study_name(cfg), ["minimize"], sampler, start=start)
 
     def objective(trial: optuna.Trial) -> float:
         params = {
@@ -326,16 +314,7 @@ def fit(
             trial.set_user_attr(f"speed_{cls}", sim["speed"][cls])
         return objective_value(cfg, observed, sim, reference)
 
-    done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
-    if c.trials - done > 0:
-        optuna.logging.set_verbosity(optuna.logging.WARNING)
-        study.optimize(
-            objective,
-            n_trials=c.trials - done,
-            callbacks=[MaxTrialsCallback(c.trials, states=(TrialState.COMPLETE,))],
-            show_progress_bar=progress,
-        )
-    return study
+    return run_until(study, objective, c.trials, progress)
 
 
 def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
@@ -474,96 +453,19 @@ def calibrate_to_data(
     )
     points = cfg.calibrate.sensitivity_points
     sensitive = sensitivity(cfg, observed, study, reference) if points else None
-    return write_report(cfg, Path(report), observed, study, arms, table, calibrated, sensitive)
-
-
-def write_report(
-    cfg: CalibrateAppConfig,
-    out: Path,
-    observed: Observed,
-    study: optuna.Study,
-    arms: dict[str, dict],
-    table: pd.DataFrame,
-    behavior: BehaviorConfig,
-    sensitive: pd.DataFrame | None = None,
-) -> dict[str, Any]:
-    """``statistics.csv``/``.md``, ``statistics.png``, ``convergence.png``, ``scores.json``,
-    and with ``sensitive`` ``sensitivity.csv``/``.md`` and ``sensitivity.png``."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "statistics.csv", index=False)
-    (out / "statistics.md").write_text(table.to_markdown(index=False, floatfmt=".3f") + "\n")
     env, mix = simulated_scene(cfg, observed)
-    summary = {
-        "target": cfg.calibrate.target,
-        "converged": behavior.converged,
-        "objective": study.best_value,
-        "trials": len(study.trials),
-        "target_vehicles": observed.vehicles,
-        "target_scene": asdict(observed.scene),
-        "simulated_scene": {
-            "lanes": env.lanes_count,
-            "vehicles_count": env.vehicles_count,
-            "vehicles_density": env.vehicles_density,
-            "vehicles_per_km_lane": _first_frame_density(cfg, env, mix),
-            "warmup": cfg.calibrate.warmup,
-            "mix": mix,
-        },
-        "in_band": {arm: int(table[f"{arm}_in_band"].sum()) for arm in arms},
-        "statistics": len(table),
-        "crashed": {arm: sim["crashed"] for arm, sim in arms.items()},
-        "parameters": {
-            cls: {k: v for k, v in asdict(getattr(behavior, cls)).items() if v is not None}
-            for cls in CLASSES
-        },
+    simulated = {
+        "lanes": env.lanes_count,
+        "vehicles_count": env.vehicles_count,
+        "vehicles_density": env.vehicles_density,
+        "vehicles_per_km_lane": _first_frame_density(cfg, env, mix),
+        "warmup": cfg.calibrate.warmup,
+        "mix": mix,
     }
-    if sensitive is not None:
-        sensitive.to_csv(out / "sensitivity.csv", index=False)
-        noise = sensitive.attrs["noise"]
-        (out / "sensitivity.md").write_text(
-            f"Objective noise (standard deviation over scene sets): {noise:.4f}\n\n"
-            + sensitive.to_markdown(index=False, floatfmt=".3f")
-            + "\n"
-        )
-        _plot_sensitivity(sensitive, out / "sensitivity.png")
-        summary["identified"] = sorted(sensitive.parameter[sensitive.identified == True])  # noqa: E712
-        summary["not_identified"] = sorted(
-            sensitive.parameter[sensitive.identified == False]  # noqa: E712
-        )
-        summary["objective_noise"] = noise
-    (out / "scores.json").write_text(json.dumps(summary, indent=2, default=float))
-    classes = [cls for cls in (CONSERVATIVE, AGGRESSIVE) if cls in observed.samples]
-    fig, axes = plt.subplots(
-        len(classes), len(ALL_STATISTICS), figsize=(3.2 * len(ALL_STATISTICS), 2.6 * len(classes)),
-        squeeze=False,
+    return write_report(
+        cfg.calibrate.target, Path(report), observed, study, arms, table, calibrated, simulated,
+        sensitive,
     )  # fmt: skip
-    for i, cls in enumerate(classes):
-        for j, name in enumerate(ALL_STATISTICS):
-            ax = axes[i][j]
-            target = observed.samples[cls].get(name, np.empty(0))
-            series = [("target", target, "k")] + [
-                (arm, sim["samples"].get(cls, {}).get(name, np.empty(0)), color)
-                for (arm, sim), color in zip(arms.items(), ("tab:gray", "tab:green"), strict=True)
-            ]
-            values = np.concatenate([s for _, s, _ in series if len(s)] or [np.zeros(1)])
-            bins = np.linspace(*np.quantile(values, [0.01, 0.99]), 31)
-            for arm, sample, color in series:  # dashed on top: equal arms both show
-                if len(sample):
-                    ax.hist(sample, bins=bins, density=True, histtype="step", color=color,
-                            ls="--" if arm == "calibrated" else "-", label=arm,
-                            lw=2.0 if arm == "table1" else 1.2)  # fmt: skip
-            ax.set_title(f"{cls}: {name}", fontsize=9)
-            if i == 0 and j == 0:
-                ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out / "statistics.png", dpi=110)
-    plt.close(fig)
-    plot_convergence(study, out / "convergence.png", "weighted scaled distance")
-    return summary
 
 
 def _first_frame_density(cfg: CalibrateAppConfig, env, mix: float) -> float:
@@ -574,30 +476,3 @@ def _first_frame_density(cfg: CalibrateAppConfig, env, mix: float) -> float:
     seeds = range(c.scene_seed, c.scene_seed + c.episodes)
     table = rollout(env_config(probe), "idle", seeds, cfg.backend, record=True).trajectories
     return scene(table[table.frame == 0]).vehicles_per_km_lane
-
-
-def _plot_sensitivity(table: pd.DataFrame, path: Path) -> None:
-    """The objective along each parameter's sweep (best value marked, the noise margin
-    shaded), one panel per parameter, the most important first."""
-    import matplotlib.pyplot as plt
-
-    curves = table.attrs["curves"]
-    names = list(table.parameter)
-    cols = 4
-    rows = int(np.ceil(len(names) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.2 * cols, 2.4 * rows), squeeze=False)
-    margin = 2 * table.attrs["noise"] if np.isfinite(table.attrs["noise"]) else 0.0
-    for ax, name in zip(axes.flat, names, strict=False):
-        row = table[table.parameter == name].iloc[0]
-        curve = curves[curves.parameter == name]
-        ax.plot(curve.value, curve.objective, "o-", ms=3)
-        ax.axhspan(row.objective_best, row.objective_best + margin, color="0.9")
-        ax.axvline(row.best, color="tab:green", ls="--")
-        flag = "" if row.identified else " (not identified)"
-        ax.set_title(f"{name}{flag}", fontsize=8)
-    for ax in axes.flat[len(names) :]:
-        ax.axis("off")
-    fig.supylabel("objective")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)

@@ -33,6 +33,9 @@ from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, EGO
 
 STATISTICS = ("speed", "headway", "acceleration", "lane_changes")
 """The statistics :func:`class_samples` returns, in this order."""
+ALL_STATISTICS = ("score", *STATISTICS)
+"""What calibration to data compares, per class: the CMetric score and the kinematic
+statistics."""
 
 
 def driver_class(labels: pd.Series, aggressive_prefix: str = "agg") -> pd.Series:

@@ -23,16 +23,14 @@ from bgap.cmetric.config import SCHEMAS, CMetricAppConfig
 from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
+from bgap.common.plotting import pyplot
 from bgap.common.runs import save_run_metadata
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
 
 def plot_centrality(result, vehicle_ids, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     cent = result.centrality
     episode = cent.episode.iloc[0]

@@ -13,8 +13,11 @@ import warnings
 from pathlib import Path
 
 import optuna
+from optuna.study import MaxTrialsCallback
+from optuna.trial import TrialState
 
 from bgap.common.errors import ConfigError
+from bgap.common.plotting import pyplot
 
 # Seconds between a running trial's heartbeats, and without one before it counts as dead.
 HEARTBEAT = (30, 90)
@@ -76,10 +79,7 @@ def open_storage(url: str, key: str = "storage") -> optuna.storages.BaseStorage:
 def plot_convergence(study: optuna.Study, path: str | Path, ylabel: str) -> None:
     """Every completed trial's value and the best so far (in the study's direction), as a
     PNG: the convergence plot of the calibration to data and of CMetric's search."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
     import numpy as np
 
     done = [t for t in study.trials if t.value is not None]
@@ -98,3 +98,51 @@ def plot_convergence(study: optuna.Study, path: str | Path, ylabel: str) -> None
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def resumable_study(
+    storage: optuna.storages.BaseStorage,
+    name: str,
+    directions: list[str],
+    sampler: optuna.samplers.BaseSampler,
+    pruner: optuna.pruners.BasePruner | None = None,
+    start: dict | None = None,
+) -> optuna.Study:
+    """The study ``name`` in ``storage``: created, or reopened with every trial a previous
+    run or another worker finished. A new study plays ``start`` (parameters) first."""
+    with warnings.catch_warnings():  # a seeded TPE sampler with workers: "experimental"
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+        study = optuna.create_study(
+            study_name=name,
+            storage=storage,
+            directions=directions,
+            sampler=sampler,
+            pruner=pruner,
+            load_if_exists=True,
+        )
+    if start is not None and not study.trials:
+        study.enqueue_trial(start)
+    return study
+
+
+def run_until(
+    study: optuna.Study,
+    objective,
+    trials: int,
+    progress: bool = True,
+    counted: tuple[TrialState, ...] = (TrialState.COMPLETE,),
+    catch: tuple[type[Exception], ...] = (),
+) -> optuna.Study:
+    """Optimise until ``study`` holds ``trials`` trials in the ``counted`` states, counted
+    across reruns and workers (each worker stops when the study has them all)."""
+    done = len(study.get_trials(deepcopy=False, states=counted))
+    if trials > done:
+        optuna.logging.set_verbosity(optuna.logging.WARNING)
+        study.optimize(
+            objective,
+            n_trials=trials - done,
+            callbacks=[MaxTrialsCallback(trials, states=counted)],
+            show_progress_bar=progress,
+            catch=catch,
+        )
+    return study

@@ -280,7 +280,8 @@ def _sb3_rate(seconds: float) -> tuple[float, float]:
 
     import torch
 
-    from bgap.experiments.train import build_model, make_training_env
+    from bgap.experiments.train import make_training_env
+    from bgap.experiments.training import build_model
 
     torch.set_num_threads(1)  # as bgap.train
     cfg = _learn_config()
@@ -309,7 +310,7 @@ def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[fl
     envs in one vector env, store, update) without its bookkeeping (episode statistics,
     checkpoints)."""
     from bgap.agents.batched import BatchedDQN, Schedule
-    from bgap.experiments.train import final_observations
+    from bgap.experiments.batched import final_observations
     from bgap.sim.simulators import make_vector_env
     from bgap.traffic.scenario import env_config
 

@@ -30,6 +30,7 @@ from bgap.agents.policies import as_policy, load_model, rollout
 from bgap.analysis.stats import t_interval, wilson_interval
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
+from bgap.common.plotting import pyplot
 from bgap.common.runs import MODEL, model_file
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
@@ -216,10 +217,7 @@ def format_table(summary: pd.DataFrame) -> str:
 
 def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
     """Bars per policy (one group per cell) with 95% CIs, as in the paper's figures."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     metrics = [
         ("collision_pct", "collision_lo", "collision_hi", "collisions [% episodes]"),

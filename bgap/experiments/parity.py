@@ -18,6 +18,7 @@ import pandas as pd
 
 from bgap.agents.policies import rollout
 from bgap.analysis.stats import t_interval, wilson_interval
+from bgap.common.plotting import pyplot
 from bgap.common.vocab import CLASSES
 
 # The scripted ego: a fixed cycle of meta-actions (indexed by the policy step), busy enough
@@ -120,10 +121,7 @@ def compare(episodes: pd.DataFrame) -> pd.DataFrame:
 
 
 def plot(table: pd.DataFrame, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     metrics = list(dict.fromkeys(table["metric"]))
     fig, axes = plt.subplots(1, len(metrics), figsize=(3.2 * len(metrics), 3.2))

@@ -44,6 +44,7 @@ from omegaconf import DictConfig
 
 from bgap.analysis.stats import t_interval
 from bgap.common.config import app, load, validate
+from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, RecipeConfig, compose
@@ -167,10 +168,7 @@ def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
 
 def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
     """Validation collision % and speed against gradient updates, one line per seed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     run_dirs = [d for d in run_dirs if (Path(d) / "evaluations.csv").exists()]
     if not run_dirs:  # trained without periodic validation: say so in the figure itself
@@ -182,7 +180,9 @@ def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
         plt.close(fig)
         return
 
-    thousands = matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k")
+    from matplotlib.ticker import FuncFormatter  # loaded by pyplot() above
+
+    thousands = FuncFormatter(lambda v, _: f"{v / 1000:g}k")
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
     for run_dir in run_dirs:
         ev = pd.read_csv(Path(run_dir) / "evaluations.csv")

@@ -18,10 +18,12 @@ from pathlib import Path
 import pandas as pd
 from omegaconf import DictConfig
 
+from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import beats_idle
 from bgap.common.config import app, load
 from bgap.common.runs import VOLATILE, digest, model_file, save_run_metadata
 from bgap.common.vocab import POLICIES
+from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.evaluate import (
     crash_split,
@@ -31,7 +33,8 @@ from bgap.experiments.evaluate import (
     summarize,
     write_results,
 )
-from bgap.experiments.train import run_dir_for, train, train_batched, training_config
+from bgap.experiments.train import train
+from bgap.experiments.training import run_dir_for, training_config
 
 
 def results_dir(cfg: ExperimentConfig) -> Path:
@@ -111,10 +114,8 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
 
 def seed_summary(episodes):
     """Per policy family and cell, the mean over training seeds of each figure and its 95%
-    interval across seeds (:func:`bgap.analysis.figures.cell_stats`), in :func:`summarize`'s
+    interval across seeds (:func:`bgap.analysis.episodes.cell_stats`), in :func:`summarize`'s
     columns."""
-    from bgap.analysis.figures import cell_stats, parse_policies
-
     parsed = parse_policies(episodes)
     stats, _ = cell_stats(parsed)
     renamed = stats.rename(

@@ -35,9 +35,10 @@ from bgap.agents.policies import baseline, greedy, rollout
 from bgap.analysis.stats import constrained_score
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
+from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, digest
-from bgap.common.studies import open_storage, sqlite_url
+from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.traffic.scenario import env_config
 
@@ -121,7 +122,7 @@ def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, 
 def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.DataFrame:
     """``policy`` on the first ``episodes`` validation episodes (seeds ``val_seed + k``) of
     ``cfg``'s training traffic, its mix drawn as in training."""
-    from bgap.experiments.train import training_config
+    from bgap.experiments.training import training_config
 
     cfg = training_config(cfg)
     seeds = range(cfg.val_seed, cfg.val_seed + episodes)
@@ -198,7 +199,6 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
 
 def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     """Run (or continue) the study until it holds ``cfg.trials`` finished trials."""
-    from optuna.study import MaxTrialsCallback
     from optuna.trial import TrialState
 
     space = load_space(cfg.sweep)
@@ -206,25 +206,21 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     root.mkdir(parents=True, exist_ok=True)
     storage = open_storage(cfg.storage or sqlite_url(root))
     multi = cfg.mode == "multi"
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-        study = optuna.create_study(
-            study_name=study_name(cfg),
-            storage=storage,
-            directions=["minimize", "maximize"] if multi else None,
-            direction=None if multi else "minimize",
-            sampler=optuna.samplers.TPESampler(seed=None),  # workers must not repeat draws
-            pruner=None if multi else optuna.pruners.MedianPruner(n_startup_trials=5),
-            load_if_exists=True,
-        )
+    study = resumable_study(
+        storage,
+        study_name(cfg),
+        ["minimize", "maximize"] if multi else ["minimize"],
+        optuna.samplers.TPESampler(seed=None),  # workers must not repeat draws
+        None if multi else optuna.pruners.MedianPruner(n_startup_trials=5),
+    )
     finished = (TrialState.COMPLETE, TrialState.PRUNED)
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study.optimize(
+    run_until(
+        study,
         lambda t: run_trial(t, cfg, space, root),
-        n_trials=max(cfg.trials - len(study.get_trials(deepcopy=False, states=finished)), 0),
-        callbacks=[MaxTrialsCallback(cfg.trials, states=finished)],
-        show_progress_bar=progress,
-        catch=(ValueError,),
+        cfg.trials,
+        progress,
+        finished,
+        (ValueError,),
     )
     return study
 
@@ -258,10 +254,7 @@ def write_outputs(
 ) -> dict[str, Path]:
     """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
     chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     out = Path(cfg.out or Path(cfg.root) / "sweeps" / study_name(cfg))
     out.mkdir(parents=True, exist_ok=True)

@@ -33,9 +33,16 @@ from bgap.cmetric.search.study import (
 )
 from bgap.cmetric.truths import broken_truths
 from bgap.common.config import app, load
+from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, digest, save_run_metadata
-from bgap.common.studies import open_storage, plot_convergence, sqlite_url
+from bgap.common.studies import (
+    open_storage,
+    plot_convergence,
+    resumable_study,
+    run_until,
+    sqlite_url,
+)
 
 NOT_CONTENT = (*VOLATILE, "trials", "storage", "preset")
 """Settings a rerun may change without changing what the study holds."""
@@ -47,22 +54,18 @@ def search(cfg: CMetricSearchConfig, progress: bool = True):
     """Run (or continue) the study to ``cfg.trials`` complete trials; return it and the
     loaded parts."""
     import optuna
-    from optuna.study import MaxTrialsCallback
-    from optuna.trial import TrialState
 
     parts = load_parts(cfg)
     tuning = [p for p in parts if p.part == "search"]
     storage = open_storage(cfg.storage or sqlite_url(cfg.out))
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    study = optuna.create_study(
-        study_name=cfg.study or study_name(cfg),  # named by run() for the command
-        storage=storage,
-        direction="maximize",
-        sampler=optuna.samplers.TPESampler(seed=cfg.seed, n_startup_trials=10),
-        load_if_exists=True,
+    study = resumable_study(
+        storage,
+        cfg.study or study_name(cfg),  # named by run() for the command
+        ["maximize"],
+        optuna.samplers.TPESampler(seed=cfg.seed, n_startup_trials=10),
+        start=start_params(cfg.cmetric),  # trial 0: the starting preset
     )
-    if not study.trials:
-        study.enqueue_trial(start_params(cfg.cmetric))  # trial 0: the starting preset
 
     def objective(trial) -> float:
         cmetric = suggest(trial, cfg.cmetric)
@@ -74,15 +77,7 @@ def search(cfg: CMetricSearchConfig, progress: bool = True):
         trial.set_user_attr("broken truths", broken)
         return objective_value(results, cfg.max_flagged, cfg.z) - (1.0 if broken else 0.0)
 
-    done = len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,)))
-    if cfg.trials > done:
-        study.optimize(
-            objective,
-            n_trials=cfg.trials - done,
-            callbacks=[MaxTrialsCallback(cfg.trials, states=(TrialState.COMPLETE,))],
-            show_progress_bar=progress,
-        )
-    return study, parts
+    return run_until(study, objective, cfg.trials, progress), parts
 
 
 def study_name(cfg: CMetricSearchConfig) -> str:
@@ -102,11 +97,6 @@ def study_name(cfg: CMetricSearchConfig) -> str:
 def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.DataFrame:
     """AUC per dataset and part for the default, starting and tuned parameters, with the
     figures; returns the AUC table."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out = Path(cfg.out)
     presets = {"default": CMetricConfig(), cfg.cmetric.name: cfg.cmetric, "tuned": tuned}
     rows, scores = [], {}
@@ -143,8 +133,15 @@ def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.D
         "",
     ]
     (out / "report.md").write_text("\n".join(lines))
+    _plot_validation(parts, list(presets), scores, out)
+    plot_convergence(study, out / "convergence.png", "worst search-part AUC")
+    return table
 
-    # ROC curves and score distributions of the tuned parameters on the validation parts
+
+def _plot_validation(parts, presets: list[str], scores: dict, out: Path) -> None:
+    """ROC curves and score distributions of the tuned parameters on the validation parts
+    (``roc.png``, ``scores.png``)."""
+    plt = pyplot()
     valid = [p for p in parts if p.part == "validation"]
     cols = min(4, len(valid))
     rows_n = -(-len(valid) // cols)
@@ -182,9 +179,6 @@ def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.D
         fig.tight_layout()
         fig.savefig(out / f"{kind}.png", dpi=110)
         plt.close(fig)
-
-    plot_convergence(study, out / "convergence.png", "worst search-part AUC")
-    return table
 
 
 def _roc(score: pd.Series, positive: pd.Series) -> tuple[list[float], list[float]]:

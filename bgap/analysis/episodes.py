@@ -1,0 +1,145 @@
+"""The evaluation episodes read back: policies parsed from their run folders, and per arm,
+policy family and cell the mean over training seeds with its interval."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bgap.analysis.stats import (
+    mean_interval,
+    seed_rate_interval,
+)
+from bgap.common.vocab import CRASH_KINDS
+from bgap.traffic.behaviors import count_aggressive
+from bgap.traffic.scenario import env_preset
+
+MODEL = re.compile(
+    r"^(?:(?P<arm>[^/]+)/(?:[^/]+/)*)?(?P<density>[a-z]+)-(?P<family>behavior_rich|default)"
+    r"-s(?P<seed>\d+)$"
+)
+METRICS = {"collision_pct": "collision %", "avg_speed": "speed m/s", "lane_changes": "lane changes"}
+KEYS = ["arm", "family", "traffic", "density", "mix", "radius"]
+MIXTURE_ARMS = ("main", "authors")
+"""Arms that train both families, behaviour-rich on the mixture of the paper's mixes."""
+ARM_NAMES = {
+    "main": "recipe (main arm)",
+    "authors": "authors' 2020 configuration",
+    "mix0": "behaviour-rich trained at 0% aggressive",
+    "mix50": "behaviour-rich trained at 50% aggressive",
+    "mix100": "behaviour-rich trained at 100% aggressive",
+}
+ALPHA = 0.05
+
+
+def n_of(density: str) -> int | str:
+    """The paper's name of a density: its number of background vehicles n."""
+    try:
+        return env_preset(density).vehicles_count
+    except ValueError:
+        return density
+
+
+# ---------------------------------------------------------------------- episodes
+def load_episodes(results_dir: str | Path, traffic: str = "paper") -> pd.DataFrame:
+    """Episode rows with the arm, family, training seed and traffic parsed and added."""
+    path = Path(results_dir) / "episodes.csv"
+    if not path.exists():
+        raise FileNotFoundError(f"{path} not found: run python -m bgap.evaluate first")
+    df = parse_policies(pd.read_csv(path))
+    df["traffic"] = traffic
+    return df
+
+
+def parse_policies(df: pd.DataFrame) -> pd.DataFrame:
+    """``arm``, ``family`` and ``train_seed`` columns parsed from policy names (baselines:
+    their own name as family, arm "" and seed -1), and ``collision_pct`` per episode."""
+    df = df.copy()
+    parsed = df.policy.str.extract(MODEL)
+    trained = parsed["family"].notna()
+    df["family"] = parsed["family"].fillna(df.policy)
+    df["arm"] = parsed["arm"].where(parsed["arm"].notna(), "main").where(trained, "")
+    df["train_seed"] = pd.to_numeric(parsed["seed"]).fillna(-1).astype(int)
+    df["collision_pct"] = 100.0 * df.crashed.astype(float)
+    if "traffic" not in df:
+        df["traffic"] = "paper"
+    return df
+
+
+def duplicates(df: pd.DataFrame) -> dict[tuple[str, float], float]:
+    """(density, mix) -> the earlier mix that gives the same traffic (the same number of
+    aggressive drivers, e.g. 3 of 5 at mixes 0.5 and 0.6): such a cell repeats the other's
+    episodes and is counted once in averages over mixes."""
+    out = {}
+    for density in sorted(set(df.density)):
+        seen: dict[int, float] = {}
+        n = n_of(density)
+        for mix in sorted(set(df[df.density == density].mix)):
+            k = count_aggressive(mix, n) if isinstance(n, int) else mix
+            if k in seen:
+                out[(density, mix)] = seen[k]
+            else:
+                seen[k] = mix
+    return out
+
+
+def _distinct(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of cells that are not duplicates of another mix."""
+    dup = duplicates(df)
+    keep = [(d, m) not in dup for d, m in zip(df.density, df.mix, strict=True)]
+    return df[np.asarray(keep, dtype=bool)]
+
+
+def _groups(df: pd.DataFrame, metric: str) -> dict[int, np.ndarray]:
+    """Training seed -> that seed's episode values of ``metric`` (seed order, the episodes
+    in a fixed order: cell, then episode seed)."""
+    ordered = df.sort_values(["mix", "radius", "seed"])
+    return {s: g[metric].to_numpy(dtype=float) for s, g in ordered.groupby("train_seed")}
+
+
+def _crashes(df: pd.DataFrame) -> list[np.ndarray]:
+    """Each training seed's episodes as 0/1 crashes (:func:`_groups` order)."""
+    return [x / 100 for x in _groups(df, "collision_pct").values()]
+
+
+def _rate(df: pd.DataFrame, rng: np.random.Generator) -> tuple[float, float, float, int]:
+    """Collision % averaged over training seeds, its 95% interval
+    (:func:`bgap.analysis.stats.seed_rate_interval`) and the number of seeds."""
+    pct = list(_groups(df, "collision_pct").values())
+    lo, hi = seed_rate_interval([x / 100 for x in pct], rng)
+    return float(np.mean([x.mean() for x in pct])), 100 * lo, 100 * hi, len(pct)
+
+
+# ---------------------------------------------------------------------- cells
+def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Per arm, family, traffic and cell: mean over training seeds of each metric and its 95%
+    interval; returns (cells, per-seed means). Collision %: the two-level bootstrap across
+    seeds widened to the pooled Wilson interval (:func:`bgap.analysis.stats.seed_rate_interval`,
+    never of zero width); speed and lane changes: Student t across seed means (across
+    episodes with one seed)."""
+    keys = [k for k in KEYS if k in df]
+    per_seed = df.groupby([*keys, "train_seed"])[list(METRICS)].mean().reset_index()
+    dup = duplicates(df)
+    rng = np.random.default_rng(0)
+    seed_means = dict(iter(per_seed.groupby(keys, sort=True)))
+    rows = []
+    for key, episodes in df.groupby(keys, sort=True):
+        row = dict(zip(keys, key, strict=True))
+        g = seed_means[key]
+        rate, lo, hi, n_seeds = _rate(episodes, rng)
+        row |= {"seeds": n_seeds, "n_seeds": n_seeds, "n_episodes": len(episodes)}
+        row |= {"collision_pct": rate, "collision_pct_lo": lo, "collision_pct_hi": hi}
+        for m in ("avg_speed", "lane_changes"):
+            row[m] = float(g[m].mean())
+            values = g[m].to_numpy() if len(g) > 1 else episodes[m].to_numpy(dtype=float)
+            lo, hi = mean_interval(values)
+            row[f"{m}_lo"], row[f"{m}_hi"] = max(lo, 0.0), hi
+        if "ending" in episodes:
+            share = episodes.ending.value_counts(normalize=True)
+            row |= {f"{k}_pct": 100.0 * float(share.get(k, 0.0)) for k in CRASH_KINDS}
+        row["duplicate_of"] = dup.get((row["density"], row["mix"]), np.nan)
+        rows.append(row)
+    return pd.DataFrame(rows), per_seed

@@ -1,0 +1,81 @@
+"""The results page (``results/README.md``): what the study found, with its tables and
+figures."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bgap.analysis.claims import ablation_table
+from bgap.analysis.episodes import ALPHA, duplicates, n_of
+from bgap.analysis.tables import (
+    claims_markdown,
+    departures_markdown,
+    own_markdown,
+    paper_comparison,
+    selection_markdown,
+    table2,
+)
+from bgap.common.vocab import SPEED_FLOOR
+
+
+def readme(df, stats, table, own, results_dir, stock, runs, paths) -> str:
+    ablated = ablation_table(df)
+    trained = df[df.train_seed >= 0]
+    seeds = trained.groupby(["arm", "density", "family"]).train_seed.nunique()
+    sizes = ", ".join(f"{arm}: {int(n)}" for arm, n in seeds.groupby(level=0).max().items())
+    dup = duplicates(df[df.traffic == "paper"])
+    dup_text = "; ".join(f"n = {n_of(d)}: mix {m:g} repeats mix {o:g}"
+                         for (d, m), o in sorted(dup.items())) or "none"  # fmt: skip
+    figures = ", ".join(f"`figures/{p.name}`" for k, p in paths.items() if p.suffix == ".png")
+    flagged = own[~own.beats_idle] if len(own) else own
+    parts = [
+        "# Results (written by `python -m bgap.figures`; do not edit)\n",
+        f"Source: `{results_dir}`"
+        + (f" and `{stock}` (stock traffic)" if stock else "")
+        + f": {len(df):,} evaluation episodes; training seeds per policy and arm: {sizes}. "
+        f"Figures: {figures}. Per-cell numbers: `cells.csv` (with `n_seeds`, `n_episodes`); "
+        f"claims: `claims.csv`; own traffic: `own_traffic.csv`.\n",
+        f"Cells that repeat another cell's traffic (the same number of aggressive drivers, "
+        f"so the same episodes): {dup_text}. They are shown in the per-cell tables and "
+        "counted once in every average over mixes and in the claims.\n",
+        "## Does each trained policy beat idle in its own training traffic?\n",
+        "Own traffic: behaviour-rich on the mixes it trained on, default in highway-env's "
+        "stock traffic; largest radius; fewer collisions than the idle ego at a mean speed of "
+        f"at least {SPEED_FLOOR:g} x idle's, on the same episodes. A flagged policy's "
+        "comparisons below are not evidence about behaviour-rich training.\n",
+        own_markdown(own) if len(own) else "(no trained policies)\n",
+        (f"**{len(flagged)} flagged.**\n" if len(flagged) else "None flagged.\n"),
+        "## The paper's claims\n",
+        "a - b as the claim reads (collision percentage points, m/s or lane changes per "
+        "episode). Training seeds are the independent units: two-level bootstrap (seeds, then "
+        "episodes within each); one model in two traffic conditions is paired by training "
+        "seed; two perception radii play the same scenes, so per-episode differences are "
+        "resampled; two policy families are never paired. Holm's correction runs across the "
+        f"{len(table)} rows; the verdict follows from the corrected p-value (alpha "
+        f"{ALPHA:g}) and the Holm-corrected interval is the bootstrap interval at the level "
+        "Holm's step tests the claim at.\n",
+        claims_markdown(table) if len(table) else "(no claims: one family only)\n",
+        "## Training traffic: one mix or the mixture (ablation)\n",
+        "Behaviour-rich trained at one mix minus behaviour-rich trained on the mixture of the "
+        "paper's mixes (main arm), collision percentage points, largest radius; unpaired "
+        "two-level bootstrap, exploratory (not in the Holm family). Figure: "
+        "`figures/ablation.png`.\n",
+        (ablated.to_markdown(index=False, floatfmt=".2f") if len(ablated) else "(no ablation arms)")
+        + "\n",
+        "## Collisions and speed beside the paper's bars (main arm)\n",
+        paper_comparison(stats),
+        "## Table II\n",
+        "Our rates for every policy in Table II's cell; the paper reports no interval and no "
+        "baseline in that cell, so its 3.00% should be read against idle's and default's "
+        "rates there.\n",
+        table2(stats),
+        "## Where the arms differ\n",
+        departures_markdown(Path(runs) if runs else None),
+        "## Checkpoints the trainings kept\n",
+        "Each training validates every 50 episodes on 20 episodes of its own traffic and "
+        "keeps the validation with the highest mean return under its own reward "
+        "(`best_model.zip`, SB3's EvalCallback rule; ours: the paper keeps none); the test "
+        "episodes play that checkpoint.\n",
+        selection_markdown(Path(runs) if runs else None),
+    ]
+    return "\n".join(parts)

@@ -1,0 +1,197 @@
+"""The study's figures: Fig. 4 and Fig. 6 redone, the paper's bars beside ours, the
+training-mix ablation."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bgap.analysis.claims import claims, own_traffic
+from bgap.analysis.episodes import (
+    ARM_NAMES,
+    METRICS,
+    MIXTURE_ARMS,
+    _distinct,
+    cell_stats,
+    load_episodes,
+    n_of,
+)
+from bgap.analysis.page import readme
+from bgap.analysis.paper import PAPER_CRASHES
+from bgap.analysis.tables import table2
+from bgap.common.plotting import pyplot
+
+
+# ---------------------------------------------------------------------- figures
+def _errorbar(ax, s: pd.DataFrame, metric: str, **kwargs) -> None:
+    err = [np.clip(s[metric] - s[f"{metric}_lo"], 0, None),
+           np.clip(s[f"{metric}_hi"] - s[metric], 0, None)]  # fmt: skip
+    ax.errorbar(s.mix, s[metric], yerr=err, capsize=3, **kwargs)
+
+
+def fig4(stats: pd.DataFrame, per_seed: pd.DataFrame, path: Path, arm: str = "main") -> None:
+    """Collision %, speed and lane changes against the aggressive fraction: the arm's two
+    families (mean over seeds, 95% interval, small dots each seed) and the idle and
+    rule-based egos on the same episodes."""
+    plt = pyplot()
+    g = stats[stats.traffic == "paper"]
+    radius = g.radius.max()
+    densities = [d for d in ("sparse", "dense") if d in set(g.density)]
+    fig, axes = plt.subplots(len(densities), 3, figsize=(12, 3.3 * len(densities)), squeeze=False)
+    colors = {"behavior_rich": "tab:green", "default": "tab:gray"}
+    for r, density in enumerate(densities):
+        here = g[(g.density == density) & (g.radius == radius)]
+        for c, (metric, label) in enumerate(METRICS.items()):
+            ax = axes[r, c]
+            for family, color in colors.items():
+                s = here[(here.arm == arm) & (here.family == family)].sort_values("mix")
+                if s.empty:
+                    continue
+                _errorbar(ax, s, metric, fmt="-o", color=color, label=family.replace("_", "-"))
+                p = per_seed[(per_seed.arm == arm) & (per_seed.family == family)
+                             & (per_seed.density == density) & (per_seed.radius == radius)
+                             & (per_seed.traffic == "paper")]  # fmt: skip
+                ax.plot(p.mix, p[metric], ".", color=color, alpha=0.35)
+            for name, style in (("idle", "--"), ("rule", ":")):
+                s = here[here.family == name].sort_values("mix")
+                if len(s):
+                    ax.plot(s.mix, s[metric], style, color="k", lw=1, label=name)
+            ax.set_title(f"n = {n_of(density)}: {label}", fontsize=10)
+            ax.set_xlabel("aggressive fraction")
+            if r == 0 and c == 0:
+                ax.legend(fontsize=8)
+    fig.suptitle(f"Fig. 4 (bgap, {ARM_NAMES.get(arm, arm)}): radius {radius:g} m", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def fig6(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
+    plt = pyplot()
+    g = stats[(stats.traffic == "paper") & (stats.arm == arm)]
+    densities = [d for d in ("sparse", "dense") if d in set(g.density)]
+    fig, axes = plt.subplots(1, len(densities), figsize=(5.5 * len(densities), 3.4), squeeze=False)
+    for ax, density in zip(axes[0], densities, strict=True):
+        for radius in sorted(set(g.radius), reverse=True):
+            s = g[(g.family == "behavior_rich") & (g.density == density)
+                  & (g.radius == radius)].sort_values("mix")  # fmt: skip
+            _errorbar(ax, s, "collision_pct", fmt="-o", label=f"{radius:g} m")
+        ax.set_title(f"n = {n_of(density)}: behaviour-rich collisions", fontsize=10)
+        ax.set_xlabel("aggressive fraction")
+        ax.set_ylabel("collision %")
+        ax.legend(title="perception radius", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def paper_vs_ours(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
+    """The paper's crash bars (hatched) beside ours (solid, 95% interval) at 0, 50 and 100%
+    aggressive, per density and family, with idle's rate on the same episodes."""
+    plt = pyplot()
+    g = stats[(stats.traffic == "paper")]
+    g = g[g.radius == g.radius.max()]
+    densities = [d for d in ("sparse", "dense") if d in set(g.density)]
+    fig, axes = plt.subplots(1, len(densities), figsize=(6 * len(densities), 3.6), squeeze=False)
+    for ax, density in zip(axes[0], densities, strict=True):
+        x = np.arange(3)
+        for i, (family, color) in enumerate((("default", "tab:gray"),
+                                             ("behavior_rich", "tab:green"))):  # fmt: skip
+            paper = PAPER_CRASHES[(density, family)]
+            ax.bar(x + i * 0.4 - 0.3, list(paper.values()), 0.2, color=color, alpha=0.35,
+                   hatch="//", label=f"{family.replace('_', '-')} (paper)")  # fmt: skip
+            s = g[(g.arm == arm) & (g.family == family) & (g.density == density)]
+            s = s.set_index("mix").reindex(list(paper))
+            err = [np.clip(s.collision_pct - s.collision_pct_lo, 0, None).fillna(0),
+                   np.clip(s.collision_pct_hi - s.collision_pct, 0, None).fillna(0)]  # fmt: skip
+            ax.bar(x + i * 0.4 - 0.1, s.collision_pct, 0.2, yerr=err, color=color, capsize=2,
+                   label=f"{family.replace('_', '-')} (bgap)")  # fmt: skip
+        idle = g[(g.family == "idle") & (g.density == density)].set_index("mix")
+        idle = idle.reindex([0.0, 0.5, 1.0])
+        ax.plot(x, idle.collision_pct, "k_", ms=30, mew=2, label="idle (bgap)")
+        ax.set_xticks(x, ["0%", "50%", "100%"])
+        ax.set_xlabel("aggressive fraction")
+        ax.set_ylabel("collisions per 100 episodes")
+        ax.set_title(f"n = {n_of(density)}", fontsize=10)
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"The paper's bars beside ours ({ARM_NAMES.get(arm, arm)})", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def ablation(stats: pd.DataFrame, path: Path) -> bool:
+    """Behaviour-rich collision % and speed against the test mix, one line per training
+    traffic (the mixture of the main arm, one mix per ablation arm); False without arms."""
+    g = stats[(stats.traffic == "paper") & (stats.family == "behavior_rich")]
+    g = g[g.radius == g.radius.max()]
+    arms = [a for a in ("main", "mix0", "mix50", "mix100") if a in set(g.arm)]
+    if len(arms) < 2:
+        return False
+    plt = pyplot()
+    densities = [d for d in ("sparse", "dense") if d in set(g.density)]
+    fig, axes = plt.subplots(len(densities), 2, figsize=(10, 3.3 * len(densities)),
+                             squeeze=False)  # fmt: skip
+    for r, density in enumerate(densities):
+        for c, metric in enumerate(("collision_pct", "avg_speed")):
+            ax = axes[r, c]
+            for arm in arms:
+                s = g[(g.arm == arm) & (g.density == density)].sort_values("mix")
+                label = "mixture of the paper's mixes" if arm == "main" else (
+                    f"trained at {float(arm[3:]):g}%")  # fmt: skip
+                _errorbar(ax, s, metric, fmt="-o", label=label)
+            ax.set_title(f"n = {n_of(density)}: {METRICS[metric]}", fontsize=10)
+            ax.set_xlabel("test aggressive fraction")
+    axes[0, 0].legend(fontsize=7, title="behaviour-rich training traffic")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+# ---------------------------------------------------------------------- the page
+def make_figures(
+    results_dir: str | Path,
+    out: str | Path = "results",
+    stock: str | Path | None = None,
+    runs: str | Path | None = None,
+) -> dict[str, Path]:
+    out = Path(out)
+    (out / "figures").mkdir(parents=True, exist_ok=True)
+    df = load_episodes(results_dir)
+    if stock is not None:
+        df = pd.concat([df, load_episodes(stock, traffic="stock")], ignore_index=True)
+    stats, per_seed = cell_stats(df)
+    paths = {name: out / f"{name}.csv" for name in ("cells", "claims", "own_traffic")}
+    stats.to_csv(paths["cells"], index=False)
+    table = claims(df)
+    table.to_csv(paths["claims"], index=False)
+    own = own_traffic(df)
+    own.to_csv(paths["own_traffic"], index=False)
+    grid = df[df.traffic == "paper"]
+    headline = {
+        f"{arm or 'baseline'}/{density}/{family}": {
+            m: round(float(g[m].mean()), 3) for m in METRICS
+        }
+        for (arm, density, family), g in _distinct(grid).groupby(["arm", "density", "family"])
+    }
+    (out / "metrics.json").write_text(json.dumps(headline, indent=1, sort_keys=True))
+    paths["table2"] = out / "table2.md"
+    paths["table2"].write_text(table2(stats))
+    arms = [a for a in MIXTURE_ARMS if a in set(stats.arm)]
+    for arm in arms:
+        name = "fig4" if arm == "main" else f"fig4_{arm}"
+        paths[name] = out / "figures" / f"{name}.png"
+        fig4(stats, per_seed, paths[name], arm)
+    paths["fig6"] = out / "figures" / "fig6.png"
+    fig6(stats, paths["fig6"], arms[0] if arms else "main")
+    paths["paper_vs_ours"] = out / "figures" / "paper_vs_ours.png"
+    paper_vs_ours(stats, paths["paper_vs_ours"], arms[0] if arms else "main")
+    if ablation(stats, out / "figures" / "ablation.png"):
+        paths["ablation"] = out / "figures" / "ablation.png"
+    paths["readme"] = out / "README.md"
+    paths["readme"].write_text(readme(df, stats, table, own, results_dir, stock, runs, paths))
+    return paths

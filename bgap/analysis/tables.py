@@ -1,0 +1,166 @@
+"""The study's tables as markdown: Table II, the paper beside ours, the claims, the
+checkpoints each training selected and the departures from the paper."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, n_of
+from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
+
+
+# ---------------------------------------------------------------------- tables
+def table2(stats: pd.DataFrame) -> str:
+    """Table II: the paper's reported rates, then every policy of ours in that cell (n = 5,
+    100% aggressive, largest radius), the baselines included."""
+    s = stats[(stats.density == "sparse") & (stats.mix == 1.0) & (stats.traffic == "paper")]
+    s = s[s.radius == s.radius.max()] if len(s) else s
+    lines = ["| method (n = 5, 100% aggressive) | collision % [95% CI] | seeds x episodes |",
+             "|---|---|---|"]  # fmt: skip
+    lines += [f"| {k} (as reported) | {v:.2f} | - |" for k, v in TABLE_II.items()]
+    for r in s.sort_values(["arm", "family"], key=_arm_order).itertuples():
+        who = _label(r.arm, r.family)
+        per = r.n_episodes // r.n_seeds
+        lines.append(
+            f"| {who} | {r.collision_pct:.2f} [{r.collision_pct_lo:.2f}, "
+            f"{r.collision_pct_hi:.2f}] | {r.n_seeds} x {per} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _arm_order(column: pd.Series) -> pd.Series:
+    order = {a: i for i, a in enumerate(["main", "authors", "mix0", "mix50", "mix100", ""])}
+    return column.map(lambda v: order.get(v, 99)) if column.name == "arm" else column
+
+
+def _label(arm: str, family: str) -> str:
+    if not arm:
+        return f"{family} (baseline)"
+    return f"bgap {family.replace('_', '-')} DQN, {ARM_NAMES.get(arm, arm)}"
+
+
+def paper_comparison(stats: pd.DataFrame, arm: str = "main") -> str:
+    lines = [
+        "| n | policy | aggressive | paper crashes/100 | bgap collision % [95% CI] | idle % | "
+        "paper speed | bgap speed m/s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    g = stats[stats.traffic == "paper"]
+    r = g.radius.max()
+    for (density, family), paper in PAPER_CRASHES.items():
+        for mix, value in paper.items():
+            s = g[(g.arm == arm) & (g.family == family) & (g.density == density)
+                  & (g.mix == mix) & (g.radius == r)]  # fmt: skip
+            idle = g[(g.family == "idle") & (g.density == density) & (g.mix == mix)
+                     & (g.radius == r)]  # fmt: skip
+            if s.empty:
+                continue
+            x = s.iloc[0]
+            speed = PAPER_SPEED.get((density, family), {}).get(mix)
+            lines.append(
+                f"| {n_of(density)} | {family} | {mix:.0%} | {value} | {x.collision_pct:.1f} "
+                f"[{x.collision_pct_lo:.1f}, {x.collision_pct_hi:.1f}] | "
+                f"{idle.iloc[0].collision_pct:.1f} | {'-' if speed is None else speed} | "
+                f"{x.avg_speed:.2f} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def claims_markdown(table: pd.DataFrame) -> str:
+    lines = [
+        "| arm | n | claim (paper figure) | paper | ours: a - b [95% CI] | Holm-corrected "
+        "interval | p (Holm) | seeds a / b | episodes a / b | verdict | reading |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in table.itertuples():
+        lines.append(
+            f"| {r.arm} | {r.n} | {r.claim} ({r.figure}) | {r.paper} | {r.difference:+.2f} "
+            f"[{r.lo:+.2f}, {r.hi:+.2f}] | [{r.lo_holm:+.2f}, {r.hi_holm:+.2f}] | "
+            f"{_p(r.p_holm)} | {r.n_seeds_a} / {r.n_seeds_b} | {r.n_episodes_a} / "
+            f"{r.n_episodes_b} | **{r.verdict}** | {r.reading} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _p(p: float) -> str:
+    """A bootstrap p-value: 0 means no replicate on the other side (below 1e-4 at 20,000)."""
+    return "< 1e-4" if p == 0 else f"{p:.2g}"
+
+
+def own_markdown(own: pd.DataFrame) -> str:
+    lines = [
+        "| arm | policy | n | own traffic | collision % [95% CI] | crashes: rear-end / "
+        "rear-ended / lane change | speed m/s | idle % (rear-end / rear-ended / lane change) | "
+        "idle m/s | seeds | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in own.sort_values(["arm", "family"], key=_arm_order).itertuples():
+        verdict = "beats idle" if r.beats_idle else "**FLAGGED: does not beat idle**"
+        split, idle_split = (
+            " / ".join(f"{getattr(r, f'{who}{k}_pct', float('nan')):.1f}"
+                       for k in ("rear_end", "rear_ended", "lane_change"))
+            for who in ("", "idle_")
+        )  # fmt: skip
+        lines.append(
+            f"| {r.arm} | {r.family} | {r.n} | {r.own_traffic} | {r.collision_pct:.1f} "
+            f"[{r.collision_lo:.1f}, {r.collision_hi:.1f}] | {split} | {r.avg_speed:.2f} | "
+            f"{r.idle_collision_pct:.1f} ({idle_split}) | {r.idle_avg_speed:.2f} | "
+            f"{r.n_seeds} | {verdict} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def selection_markdown(runs: Path | None) -> str:
+    """Where the trainings' kept checkpoints come from (``best.json`` of each run folder)."""
+    if runs is None or not Path(runs).exists():
+        return "(run folders not given)\n"
+    rows = []
+    for path in sorted(Path(runs).rglob("best.json")):
+        best = json.loads(path.read_text())
+        ev = pd.read_csv(path.parent / "evaluations.csv")
+        arm = path.relative_to(runs).parts[0]
+        rows.append({"arm": arm, "run": path.parent.name, "chosen": best["episodes"],
+                     "of": int(ev.episodes.max()), "collision": best["collision_pct"],
+                     "last": float(ev.collision_pct.iloc[-1])})  # fmt: skip
+    if not rows:
+        return "(no training validated periodically: the last parameters are evaluated)\n"
+    t = pd.DataFrame(rows)
+    lines = ["| arm | trainings | chosen at episode (median, range) | validation collision % "
+             "chosen / last (means) |", "|---|---|---|---|"]  # fmt: skip
+    for arm, g in t.groupby("arm"):
+        lines.append(f"| {arm} | {len(g)} | {g.chosen.median():.0f} ({g.chosen.min()}-"
+                     f"{g.chosen.max()} of {g['of'].max()}) | {g.collision.mean():.1f} / "
+                     f"{g['last'].mean():.1f} |")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def departures_markdown(runs: Path | None) -> str:
+    """The settings in which the main arm (the recipe) departs from the authors' arm (their
+    2020 configuration under the paper's protocol), read from the trainings' saved configs."""
+    configs = {}
+    for arm in MIXTURE_ARMS:
+        found = sorted((Path(runs) / arm).rglob("config.yaml")) if runs else []
+        if found:
+            from omegaconf import OmegaConf
+
+            configs[arm] = OmegaConf.to_container(OmegaConf.load(found[0]))
+    if len(configs) < 2:
+        return "(needs the run folders of both arms)\n"
+    lines = ["| setting | authors' arm (their 2020 configuration) | main arm (recipe) |",
+             "|---|---|---|"]  # fmt: skip
+    for group in ("reward", "agent", "profile"):
+        a, b = configs["authors"][group], configs["main"][group]
+        for key in sorted(set(a) | set(b)):
+            if key != "name" and a.get(key) != b.get(key):
+                shown = [f"{v:.4g}" if isinstance(v, float) else str(v)
+                         for v in (a.get(key), b.get(key))]  # fmt: skip
+                lines.append(f"| {group}.{key} | {shown[0]} | {shown[1]} |")
+    lines.append(
+        "\nThe recipe's settings come from `bgap.recipe` (results/recipe/, validation episodes "
+        "only); the authors' from their code (FACTS.md). `agent.gradient_steps` -1 is one "
+        "update per transition; 1 is one per vector step of 2 environments."
+    )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,137 @@
+"""What every training shares, whichever learner runs it: the config as trained, its
+identity (what changes what is learnt) and run folder, and the SB3 model it is saved as."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+from omegaconf import OmegaConf
+
+from bgap.agents.dqn import DQN
+from bgap.agents.monitor import (
+    recover_checkpoint,
+)
+from bgap.agents.per import PrioritizedReplayBuffer
+from bgap.common.errors import ConfigError
+from bgap.common.runs import VOLATILE, digest, save_run_metadata
+from bgap.experiments.config import ExperimentConfig
+from bgap.traffic.behaviors import BehaviorConfig
+
+NOT_LEARNT = (
+    *VOLATILE, "models", "baselines", "grid", "eval_seed", "val_seed", "out", "seeds",
+    "policies", "threads", "checkpoint",
+)  # fmt: skip
+"""Settings of a training's config that do not change what it learns (run folder checks).
+(``val_seed`` only moves the periodic evaluations' episodes; ``eval_seed`` the tests'.)"""
+
+
+def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
+    """The config a policy trains under: ``default`` swaps in stock traffic."""
+    policy = policy or cfg.policy
+    cfg = replace(cfg, policy=policy)
+    if policy == "default":
+        cfg = replace(cfg, behavior=BehaviorConfig(name="stock"), mix_sampling="fixed")
+    return cfg
+
+
+def training_identity(cfg: ExperimentConfig) -> dict[str, Any]:
+    """Everything that changes what a training learns."""
+    keys = {
+        k: asdict(cfg)[k]
+        for k in (
+            "env",
+            "behavior",
+            "reward",
+            "agent",
+            "radius",
+            "seed",
+            "policy",
+            "mix_sampling",
+            "backend",
+        )
+    }
+    keys["mix"] = cfg.mix if cfg.policy == "behavior_rich" else None
+    if cfg.learner != "sb3":  # (the SB3 runs' names predate this setting)
+        keys["learner"] = cfg.learner
+    keys["profile"] = {
+        k: v for k, v in asdict(cfg.profile).items() if k not in ("eval_episodes", "name")
+    }
+    return keys
+
+
+def run_name(cfg: ExperimentConfig) -> str:
+    """Readable prefix plus a hash of everything that changes what is learnt."""
+    mix = f"mix{cfg.mix:g}" if cfg.mix_sampling == "fixed" else f"mix-{cfg.mix_sampling}"
+    mix = mix if cfg.policy == "behavior_rich" else "stock"
+    name = f"{cfg.env.name}-{cfg.policy}-{mix}-{cfg.profile.name}-s{cfg.seed}"
+    name += f"-{cfg.learner}" if cfg.learner != "sb3" else ""
+    return f"{name}-{digest(training_identity(cfg))}"
+
+
+def run_dir_for(cfg: ExperimentConfig) -> Path:
+    return Path(cfg.run_dir) if cfg.run_dir else Path(cfg.root) / "runs" / run_name(cfg)
+
+
+def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> DQN:
+    a = cfg.agent
+    per = a.replay == "per"
+    return DQN(
+        "MlpPolicy",
+        env,
+        learning_rate=a.learning_rate,
+        buffer_size=a.buffer_size,
+        learning_starts=a.learning_starts,
+        batch_size=a.batch_size,
+        gamma=a.gamma,
+        train_freq=a.train_freq,
+        gradient_steps=a.gradient_steps,
+        target_update_interval=a.target_update_interval,
+        exploration_initial_eps=a.exploration_initial,
+        exploration_final_eps=a.exploration_final,
+        exploration_decay_steps=cfg.profile.exploration_decay_steps or a.exploration_decay_steps,
+        max_grad_norm=a.max_grad_norm,
+        replay_buffer_class=PrioritizedReplayBuffer if per else None,
+        replay_buffer_kwargs={"alpha": a.per_alpha, "beta0": a.per_beta0} if per else None,
+        per_beta_steps=cfg.profile.train_steps,
+        loss=a.loss,
+        policy_kwargs={"net_arch": list(a.net_arch)},
+        tensorboard_log=str(tb_dir),
+        seed=cfg.seed,
+        device="cpu",
+        verbose=0,
+    )
+
+
+def open_run_dir(cfg: ExperimentConfig, run_dir: Path | None = None) -> tuple[Path, str]:
+    """The run folder of training ``cfg`` (its config and command saved) and what to do in
+    it: ``new``, ``resume`` (a checkpoint and resume=true) or ``finished`` (model.zip is
+    written last). A folder of another training is refused, naming what differs; an
+    unfinished one without resume=true too."""
+    run_dir = run_dir or run_dir_for(cfg)
+    ckpt = run_dir / "checkpoints"
+    recover_checkpoint(run_dir)  # a kill in the middle of writing one
+    # The config it trains under (for policy=default the stock traffic, not the composed
+    # behaviour preset).
+    save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT)
+    if (run_dir / "model.zip").exists():
+        return run_dir, "finished"  # also with resume=true, which bgap.run always passes
+    if (ckpt / "state.pkl").exists():
+        if not cfg.resume:
+            raise ConfigError(
+                f"{run_dir} holds an unfinished training: resume=true continues it (or "
+                "choose another run_dir)"
+            )
+        return run_dir, "resume"
+    return run_dir, "new"
+
+
+def member_configs(cfg: ExperimentConfig) -> list[ExperimentConfig]:
+    """The trainings ``bgap.train`` makes: every seed of ``seeds`` (or ``seed``) for every
+    policy of ``policies`` (or ``policy``)."""
+    return [
+        training_config(replace(cfg, seed=seed, policy=policy))
+        for policy in (cfg.policies or [cfg.policy])
+        for seed in (cfg.seeds or [cfg.seed])
+    ]
