@@ -7,6 +7,7 @@ import json
 from pathlib import Path
 
 import pandas as pd
+from omegaconf import OmegaConf
 
 from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, n_of
 from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
@@ -144,8 +145,6 @@ def departures_markdown(runs: Path | None) -> str:
     for arm in MIXTURE_ARMS:
         found = sorted((Path(runs) / arm).rglob("config.yaml")) if runs else []
         if found:
-            from omegaconf import OmegaConf
-
             configs[arm] = OmegaConf.to_container(OmegaConf.load(found[0]))
     if len(configs) < 2:
         return "(needs the run folders of both arms)\n"

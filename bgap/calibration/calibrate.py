@@ -31,9 +31,12 @@ from omegaconf import DictConfig
 
 from bgap.agents.policies import rollout
 from bgap.calibration.config import SCHEMAS, CalibrateAppConfig
+from bgap.calibration.data import calibrate_to_data
+from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
+from bgap.common.runs import save_run_metadata
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
@@ -100,7 +103,6 @@ def with_params(behavior: BehaviorConfig, label: str, params: dict[str, float]) 
 
 def scene_scores(cfg: CalibrateAppConfig, behavior: BehaviorConfig) -> dict[str, Any]:
     """Simulate the calibration scenes under ``behavior`` and score them with CMetric."""
-    from bgap.cmetric.score import label_auc, score_trajectories
 
     c = cfg.calibrate
     env = replace(env_preset(c.density), duration=c.duration)
@@ -302,13 +304,10 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
     "every finished trial is kept in the Optuna study; rerun the same command to continue",
 )
 def main(dcfg: DictConfig) -> None:
-    from bgap.common.runs import save_run_metadata
 
     cfg: CalibrateAppConfig = load(dcfg)
     save_run_metadata(report_dir(cfg), dcfg)
     if cfg.calibrate.target:  # to a labelled table's statistics (bgap.calibrate_data)
-        from bgap.calibration.data import calibrate_to_data
-
         summary = calibrate_to_data(cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg))
     else:
         summary = calibrate(cfg)

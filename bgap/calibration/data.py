@@ -66,8 +66,10 @@ from bgap.calibration.kinematics import (
     compare,
     driver_class,
     scene,
+    total_distance,
 )
 from bgap.cmetric.io import TrajectoryError, load_trajectories
+from bgap.cmetric.score import score_trajectories
 from bgap.common.presets import write_preset
 from bgap.common.studies import open_storage, resumable_study, run_until
 from bgap.common.vocab import CLASSES
@@ -91,7 +93,6 @@ class Observed:
 
 def _statistics(table: pd.DataFrame, cfg: CalibrateAppConfig, fps: float) -> dict:
     """Per class, the kinematic samples of ``table`` and its vehicles' CMetric scores."""
-    from bgap.cmetric.score import score_trajectories
 
     c = cfg.calibrate
     samples = class_samples(table, fps=fps, aggressive_prefix=c.aggressive_prefix)
@@ -214,7 +215,6 @@ def objective_value(
     :func:`reference_distances`), ``calibrate.reference_penalty`` times the weighted mean of
     the statistics' excesses over it (a statistic Table I matches better then costs
     1 + reference_penalty times its excess in the mean's units)."""
-    from bgap.calibration.kinematics import total_distance
 
     c = cfg.calibrate
     table = compare(observed.samples, sim["samples"], asdict(c.weights))
@@ -327,6 +327,7 @@ def comparison(observed: Observed, arms: dict[str, dict]) -> pd.DataFrame:
     standard errors (2.81 for m = 10), so "every statistic lies in its band" is a claim at a
     family-wise 95% (uncorrected, even the true parameters would miss one of ten statistics
     in about two runs of five)."""
+    # Imported here: scipy.stats takes ~0.3 s to import; only this statistic needs it.
     from scipy.stats import norm
 
     m = sum(np.isfinite(b) for by_name in observed.band.values() for b in by_name.values())

@@ -19,7 +19,10 @@ from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
 
+from bgap.cmetric import score_trajectories
 from bgap.cmetric.config import SCHEMAS, CMetricAppConfig
+from bgap.cmetric.io import check_scoreable, load_trajectories
+from bgap.cmetric.score import label_auc
 from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
@@ -57,9 +60,6 @@ def plot_centrality(result, vehicle_ids, path: Path) -> None:
 
 def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     """Score ``cfg.input`` and write the scores, windows, plot and config."""
-    from bgap.cmetric import score_trajectories
-    from bgap.cmetric.io import check_scoreable, load_trajectories
-    from bgap.cmetric.score import label_auc
 
     if not cfg.input:
         raise ConfigError(f"input=None: give the trajectory table to score ({USAGE})")

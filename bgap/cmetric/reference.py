@@ -13,6 +13,7 @@ from bgap.cmetric.centrality import Scene
 
 def centralities_networkx(scene: Scene, mu: float) -> tuple[np.ndarray, np.ndarray]:
     """Same contract as :func:`bgap.cmetric.centrality.centralities`."""
+    # Imported here: networkx is a test and benchmark reference only (the dev extra).
     import networkx as nx
 
     n_frames, n = scene.x.shape

@@ -43,6 +43,7 @@ def fail(prog: str, message: str, status: int = BAD_INPUT) -> NoReturn:
 
 def known_errors() -> tuple[type[BaseException], ...]:
     """The exception types that mean bad input, not a bug."""
+    # Imported here: Hydra is imported by the commands that compose a config, not by this leaf.
     from hydra.errors import HydraException
     from omegaconf.errors import OmegaConfBaseException
 

@@ -12,6 +12,7 @@ import time
 import warnings
 from pathlib import Path
 
+import numpy as np
 import optuna
 from optuna.study import MaxTrialsCallback
 from optuna.trial import TrialState
@@ -53,6 +54,7 @@ def open_storage(url: str, key: str = "storage") -> optuna.storages.BaseStorage:
 
     RDB storages get a heartbeat: a trial whose worker died is marked failed and retried
     instead of blocking the study."""
+    # Imported here: SQLAlchemy comes with optuna's RDB storage; a journal storage needs none.
     from sqlalchemy.exc import IntegrityError, ProgrammingError
 
     try:
@@ -80,7 +82,6 @@ def plot_convergence(study: optuna.Study, path: str | Path, ylabel: str) -> None
     """Every completed trial's value and the best so far (in the study's direction), as a
     PNG: the convergence plot of the calibration to data and of CMetric's search."""
     plt = pyplot()
-    import numpy as np
 
     done = [t for t in study.trials if t.value is not None]
     numbers, values = [t.number for t in done], np.array([t.value for t in done])

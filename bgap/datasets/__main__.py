@@ -9,32 +9,29 @@ holding a dataset of other settings is refused; the same settings give the same 
 
 from __future__ import annotations
 
+from importlib import import_module
 from pathlib import Path
 
 from omegaconf import DictConfig
 from tqdm import tqdm
 
+from bgap.cmetric.io import load_trajectories
 from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.runs import save_run_metadata
 from bgap.datasets.config import SCHEMAS, DatasetsConfig
+from bgap.datasets.sumo import record, sumo_home
 
 
 def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
     """Record (SUMO) or convert (highD, NGSIM) the dataset ``cfg.source`` names into
     ``cfg.out``."""
     if cfg.source == "sumo":
-        from bgap.datasets.sumo import record, sumo_home
-
         sumo_home()  # a missing optional extra fails before any folder is made
         out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)
         with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
             table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)
     else:
-        from importlib import import_module
-
-        from bgap.cmetric.io import load_trajectories
-
         table = import_module(f"bgap.datasets.{cfg.source}").read(cfg.path)
         load_trajectories(table)  # CMetric reads what is written (a defect fails here)
         out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from bgap.cmetric.io import TrajectoryError
+from bgap.sim.recorder import COLUMNS
 
 TRACK_COLUMNS = ("frame", "id", "x", "y", "width", "height", "xVelocity", "yVelocity", "laneId")
 META_COLUMNS = ("id", "class", "drivingDirection")
@@ -60,7 +61,6 @@ def _read(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
 
 def read_recording(tracks_path: Path, index: int) -> pd.DataFrame:
     """One recording (its three files) as two scenes, one per carriageway."""
-    from bgap.sim.recorder import COLUMNS
 
     prefix = tracks_path.name[: -len("tracks.csv")]
     tracks = _read(tracks_path, TRACK_COLUMNS)

@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from bgap.cmetric.io import TrajectoryError, finite_difference_velocity
+from bgap.sim.recorder import COLUMNS
 
 FEET = 0.3048
 FPS = 10.0
@@ -40,7 +41,6 @@ CLASSES = {1: "motorcycle", 2: "car", 3: "truck"}
 
 def read(path: str | Path) -> pd.DataFrame:
     """An NGSIM trajectory file (``.csv`` with a header, or the original ``.txt``)."""
-    from bgap.sim.recorder import COLUMNS
 
     path = Path(path)
     if not path.is_file():

@@ -49,6 +49,7 @@ def whole_scene_view(config: dict, seed: int, width: int = 1800) -> dict:
     """highway-env's render settings that show the whole scene of the episode seeded
     ``seed`` at its start: every vehicle, the ego included (highway-env's default view is
     600 px at 5.5 px/m around the ego, about 110 m of a dense scene that spans 800 m)."""
+    # Imported here: highway-env (and pygame) load only where highway-env's own backend is used.
     from bgap.envs import make_highway
 
     env = make_highway(config)
@@ -82,6 +83,7 @@ def main(dcfg: DictConfig) -> None:
     out = save_run_metadata(cfg.out, dcfg)
     result = record(cfg, render=cfg.render)
     if result.images:
+        # Imported here: imageio only when a GIF is asked for (render=true).
         import imageio.v2 as imageio
 
         imageio.mimsave(out / "episode0.gif", result.images, duration=0.2, loop=0)

@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.common.errors import check
+from bgap.common.errors import ConfigError, check
+from bgap.sim.recorder import COLUMNS
 
 CAR_FOLLOWING = ("Krauss", "IDM")
 
@@ -120,10 +121,9 @@ class SumoConfig:
 def sumo_home() -> Path:
     """SUMO's installation (the ``eclipse-sumo`` wheel); a clear error without it."""
     try:
+        # Imported here: SUMO is an optional extra (pip install -e '.[sumo]').
         import sumo
     except ImportError:
-        from bgap.common.errors import ConfigError
-
         raise ConfigError(
             "source=sumo needs SUMO: pip install -e '.[sumo]' (eclipse-sumo and libsumo)"
         ) from None
@@ -173,6 +173,7 @@ def _routes(folder: Path, cfg: SumoConfig) -> Path:
 
 def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
     """One SUMO run: warm-up, the ego's insertion, ``duration`` seconds recorded."""
+    # Imported here: SUMO is an optional extra (pip install -e '.[sumo]').
     import libsumo as traci
 
     folder = Path(tempfile.mkdtemp(prefix="bgap-sumo-"))
@@ -233,7 +234,6 @@ def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
 
 def record(cfg: SumoConfig, episodes: int, seed: int, progress=None) -> pd.DataFrame:
     """``episodes`` SUMO runs with seeds ``seed + k`` (episode ``k``)."""
-    from bgap.sim.recorder import COLUMNS
 
     parts = []
     for k in range(episodes):

@@ -14,10 +14,25 @@ Figures are reported beside a baseline measured in the same run, since machines 
 from __future__ import annotations
 
 import argparse
+import os
+import tempfile
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
+
+from bgap.cmetric import score_trajectories
+from bgap.cmetric.centrality import Scene, centralities
+from bgap.cmetric.io import load_trajectories
+from bgap.cmetric.params import CMetricConfig
+from bgap.cmetric.reference import centralities_networkx
+from bgap.common.config import validate
+from bgap.common.presets import load_preset, preset_path
+from bgap.datasets.config import compose as compose_scene
+from bgap.experiments.config import compose as compose_training
+from bgap.traffic.scenario import env_config, fast_mode
 
 
 def steps_per_second(env, seconds: float, seed: int = 0) -> float:
@@ -34,18 +49,16 @@ def steps_per_second(env, seconds: float, seed: int = 0) -> float:
 
 
 def bench_env(seconds: float) -> None:
+    # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
     import gymnasium as gym
     import highway_env  # noqa: F401
 
-    from bgap.common.config import validate
-    from bgap.datasets.config import compose
     from bgap.envs import make_env
-    from bgap.traffic.scenario import env_config
 
     print(f"{'scenario':<10}{'highway-v0':>14}{'bgap paper':>14}{'bgap stock':>14}{'ratio':>8}")
     for density in ("sparse", "dense"):
-        paper_cfg = validate(compose("simulate", [f"env={density}"]))
-        stock_cfg = validate(compose("simulate", [f"env={density}", "behavior=stock"]))
+        paper_cfg = validate(compose_scene("simulate", [f"env={density}"]))
+        stock_cfg = validate(compose_scene("simulate", [f"env={density}", "behavior=stock"]))
         ours = env_config(paper_cfg)
         keys = ("lanes_count", "vehicles_count", "duration", "policy_frequency")
         settings = {k: ours[k] for k in (*keys, "simulation_frequency")}  # the same road
@@ -59,7 +72,6 @@ def bench_env(seconds: float) -> None:
 def synthetic_log(minutes: float = 60.0, vehicles: int = 40, fps: int = 15, seed: int = 0):
     """A 4-lane ring-road log: speeds 20-38 m/s drifting slowly, a 2 s lane change every ~20 s
     per vehicle. Benchmark data only: it has the size and sparsity of real logs."""
-    import pandas as pd
 
     rng = np.random.default_rng(seed)
     n_frames = int(minutes * 60 * fps)
@@ -98,12 +110,6 @@ def synthetic_log(minutes: float = 60.0, vehicles: int = 40, fps: int = 15, seed
 
 def bench_cmetric(seconds: float) -> None:
     """One-hour, 40-vehicle, 15 Hz log: our full scoring vs networkx centralities per frame."""
-    from bgap.cmetric import score_trajectories
-    from bgap.cmetric.centrality import Scene, centralities
-    from bgap.cmetric.io import load_trajectories
-    from bgap.cmetric.params import CMetricConfig
-    from bgap.cmetric.reference import centralities_networkx
-    from bgap.common.presets import load_preset, preset_path
 
     cfg = CMetricConfig()
     log = synthetic_log()
@@ -162,6 +168,7 @@ def bench_cmetric(seconds: float) -> None:
 
 
 def _vector_steps_per_second(config: dict, num_envs: int, seconds: float) -> float:
+    # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
     from bgap.sim.vector import VectorHighway
 
     venv = VectorHighway(config, num_envs)
@@ -179,6 +186,7 @@ def _envpool_steps_per_second(
     n: int, rows: int, num_envs: int, threads: int, seconds: float
 ) -> float | None:
     try:
+        # Imported here: EnvPool is the optional bench extra (pip install -e '.[bench]').
         import envpool
     except ImportError:
         return None
@@ -210,12 +218,10 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     reference), bgap's vectorised backend (``num_envs`` envs on ``threads`` threads) and
     EnvPool's C++ Highway-v0 at the same settings (when installed); then the vector backend
     in the opt-in fast mode (:func:`bgap.traffic.scenario.fast_mode`, 10 Hz instead of 15)."""
+    # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
     import numba
 
-    from bgap.common.config import validate
-    from bgap.datasets.config import compose
     from bgap.envs import make_env
-    from bgap.traffic.scenario import env_config, fast_mode
 
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     print(f"{num_envs} envs, {threads} threads, random ego actions, policy steps/s")
@@ -224,7 +230,7 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     print(f"{head}{'vector/highway':>16}{'vector/EnvPool':>16}{fast_head}")
     configs: dict[str, dict] = {}
     for density in ("dense", "sparse"):
-        cfg = validate(compose("simulate", [f"env={density}"]))
+        cfg = validate(compose_scene("simulate", [f"env={density}"]))
         config = env_config(cfg)
         ref = steps_per_second(make_env(cfg), seconds)
         vec = _vector_steps_per_second(config, num_envs, seconds)
@@ -248,6 +254,7 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
 def _print_phase_split(configs: dict[str, dict], num_envs: int, seconds: float) -> None:
     """Where a vector step's time goes: each phase as its own batched kernel
     (:mod:`bgap.sim.phases`), in ns per env-step and as a share of the phases' sum."""
+    # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
     from bgap.sim.phases import PHASES, phase_split
     from bgap.sim.vector import VectorHighway
 
@@ -266,18 +273,17 @@ def _print_phase_split(configs: dict[str, dict], num_envs: int, seconds: float) 
 def _learn_config(policy: str = "behavior_rich"):
     """Dense traffic, the default agent at the paper's replay ratio (one update per
     transition: ``gradient_steps=-1``)."""
-    from bgap.common.config import validate
-    from bgap.experiments.config import compose
 
-    return validate(compose("train", ["env=dense", f"policy={policy}", "agent.gradient_steps=-1"]))
+    return validate(
+        compose_training("train", ["env=dense", f"policy={policy}", "agent.gradient_steps=-1"])
+    )
 
 
 def _sb3_rate(seconds: float) -> tuple[float, float]:
     """Gradient updates/s and transitions/s of SB3's DQN (bgap.train's model), one training,
     after ``learning_starts``."""
-    import tempfile
-    from pathlib import Path
 
+    # Imported here: each benchmark loads only what it measures (cmetric: no torch).
     import torch
 
     from bgap.experiments.train import make_training_env
@@ -309,10 +315,10 @@ def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[fl
     training loop of :func:`bgap.experiments.train.train_batched` (act, simulate all members'
     envs in one vector env, store, update) without its bookkeeping (episode statistics,
     checkpoints)."""
+    # Imported here: each benchmark loads only what it measures (cmetric: no torch).
     from bgap.agents.batched import BatchedDQN, Schedule
     from bgap.experiments.batched import final_observations
     from bgap.sim.simulators import make_vector_env
-    from bgap.traffic.scenario import env_config
 
     cfg = _learn_config()
     e = cfg.profile.n_envs
@@ -357,8 +363,8 @@ def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: i
     """Gradient updates/s of SB3's DQN (one training) and of the batched learner with K
     members (member-updates/s), dense traffic, one update per transition; and the wall time
     of a study of 40 trainings x 180,000 transitions at each rate."""
-    import os
 
+    # Imported here: each benchmark loads only what it measures (cmetric: no torch).
     import torch
 
     from bgap.agents.batched import default_device

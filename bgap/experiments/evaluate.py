@@ -31,7 +31,8 @@ from bgap.analysis.stats import t_interval, wilson_interval
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.runs import MODEL, model_file
+from bgap.common.presets import CONF_DIR
+from bgap.common.runs import MODEL, model_file, save_run_metadata
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.traffic.scenario import env_config, env_preset
@@ -94,7 +95,6 @@ def _loaded(spec: Any) -> Any:
 
 
 def _density_of(rows: int) -> str:
-    from bgap.common.presets import CONF_DIR
 
     names = sorted(p.stem for p in (Path(CONF_DIR) / "env").glob("*.yaml"))
     found = [n for n in names if env_preset(n).observed_vehicles == rows]
@@ -277,7 +277,6 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
 
 @app("evaluate", "bgap.evaluate", SCHEMAS, "no results were written; rerun the command")
 def main(dcfg: DictConfig) -> None:
-    from bgap.common.runs import save_run_metadata
 
     cfg: ExperimentConfig = load(dcfg)
     out = Path(cfg.out or Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}")

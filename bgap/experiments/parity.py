@@ -15,11 +15,16 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm.auto import tqdm
 
 from bgap.agents.policies import rollout
 from bgap.analysis.stats import t_interval, wilson_interval
+from bgap.common.cli import fail
+from bgap.common.config import validate
 from bgap.common.plotting import pyplot
 from bgap.common.vocab import CLASSES
+from bgap.datasets.config import compose
+from bgap.traffic.scenario import env_config, fast_mode
 
 # The scripted ego: a fixed cycle of meta-actions (indexed by the policy step), busy enough
 # to crash now and then in dense traffic.
@@ -140,11 +145,6 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    from tqdm.auto import tqdm
-
-    from bgap.common.config import validate
-    from bgap.datasets.config import compose
-    from bgap.traffic.scenario import env_config, fast_mode
 
     parser = argparse.ArgumentParser(
         prog="python -m bgap.parity",
@@ -180,8 +180,6 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     out = Path(args.out)
     if args.fast and out.resolve() == Path("results/parity").resolve():
-        from bgap.common.cli import fail
-
         # its rows are labelled "vector": they must not replace the parity stage's results
         fail("bgap.parity", f"--fast needs its own --out (got {args.out}): give a copy of it")
     out.mkdir(parents=True, exist_ok=True)

@@ -13,9 +13,16 @@ from __future__ import annotations
 
 import argparse
 import ast
+import filecmp
+import os
 import re
+import shutil
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
+
+import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 """The repository (this file is bgap/experiments/pipeline.py)."""
@@ -106,6 +113,7 @@ def code_deps(dvc_yaml: Path = ROOT / "dvc.yaml") -> dict[str, tuple[list[str], 
 def write_code_deps(dvc_yaml: Path = ROOT / "dvc.yaml") -> list[str]:
     """Make every stage of ``dvc_yaml`` list exactly the code its command runs (conf files and
     other stages' outputs kept as they are); returns the stages changed."""
+    # Imported here: ruamel (DVC's YAML library, keeps comments) for the deps rewrite only.
     from ruamel.yaml import YAML
 
     yaml = YAML()
@@ -129,7 +137,9 @@ def rehearsal(params: dict) -> None:
     """Shrink ``params`` (params.yaml) in place to a rehearsal of every stage that finishes in
     minutes: the tiny profile and grid, one seed per training, a few trials and episodes.
     Every stage (and every ``foreach`` item) is kept, so each has a rehearsal."""
-    params.update(profile="tiny", grid="tiny", eval_episodes=2)
+    # the tiny grid at both densities: the study trains at both (DVC pastes the string into
+    # the evaluate stages' commands, where the second override extends the preset)
+    params.update(profile="tiny", grid="tiny grid.densities=[sparse,dense]", eval_episodes=2)
     validate = " profile.eval_every_episodes=2 profile.eval_during_training=2"
     for item in params["study"].values():
         item.update(seeds="[0]", settings=item["settings"] + validate)
@@ -147,10 +157,6 @@ def rehearsal(params: dict) -> None:
 def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
     """Run ``stages`` (and what they depend on) at the rehearsal budget in ``tree``, a copy
     of a checkout: its own git and DVC repository, so nothing outside it is touched."""
-    import os
-    import subprocess
-
-    import yaml
 
     params = yaml.safe_load((tree / "params.yaml").read_text())
     rehearsal(params)
@@ -173,6 +179,7 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
 
 def _outputs(tree: Path, stage: str) -> list[Path]:
     """Every file a stage writes (its outs, metrics and plots), relative to ``tree``."""
+    # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
     from dvc.repo import Repo
 
     with Repo(str(tree)) as repo:
@@ -187,8 +194,6 @@ def _outputs(tree: Path, stage: str) -> list[Path]:
 def _checkout(rev: str | None, into: Path, root: Path = ROOT) -> None:
     """The files of commit ``rev`` (None: the working tree, untracked files too, ignored ones
     not) copied into ``into``."""
-    import shutil
-    import subprocess
 
     if rev is not None:
         archive = subprocess.run(["git", "archive", rev], cwd=root, capture_output=True, check=True)
@@ -224,9 +229,8 @@ def relock(
     the files that differ (empty: relocked). A stage whose outputs differ must be rerun
     (``dvc repro STAGE``), not relocked.
     """
-    import filecmp
-    import tempfile
 
+    # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
     from dvc.repo import Repo
 
     work = Path(tempfile.mkdtemp(prefix="bgap-relock-")) if work is None else work

@@ -46,6 +46,7 @@ from bgap.analysis.stats import t_interval
 from bgap.common.config import app, load, validate
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
+from bgap.common.runs import save_run_metadata
 from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, RecipeConfig, compose
 from bgap.experiments.evaluate import crash_split
@@ -57,6 +58,7 @@ from bgap.experiments.sweep import (
     validation_episodes,
     write_outputs,
 )
+from bgap.experiments.train import train
 
 GROUPS = ("reward", "agent")
 """Config groups a recipe sets (the search space's keys must stay inside them)."""
@@ -73,7 +75,6 @@ def check_candidate(
 ) -> list[dict[str, Any]]:
     """Train ``trial``'s settings with every check seed; one row per seed with the policy's,
     the idle ego's and the rule-based ego's validation figures."""
-    from bgap.experiments.train import train
 
     rows = []
     for seed in cfg.check_seeds:
@@ -311,7 +312,6 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     "every finished sweep trial and training is kept; rerun the same command to continue",
 )
 def main(dcfg: DictConfig) -> None:
-    from bgap.common.runs import save_run_metadata
 
     cfg: RecipeConfig = load(dcfg)
     out = Path(cfg.out or Path(cfg.root) / "recipe")

@@ -10,6 +10,7 @@ the scripted baselines on identical seeded episodes at the chosen mix and radius
 
 from __future__ import annotations
 
+import fcntl
 import time
 from contextlib import ExitStack, contextmanager
 from dataclasses import asdict, replace
@@ -54,7 +55,6 @@ def results_dir(cfg: ExperimentConfig) -> Path:
 @contextmanager
 def _exclusive(run_dir: Path):
     """An advisory lock on a run folder, held while it is trained or checked."""
-    import fcntl
 
     run_dir.mkdir(parents=True, exist_ok=True)
     with open(run_dir / ".lock", "w") as handle:

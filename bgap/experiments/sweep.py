@@ -29,8 +29,10 @@ import optuna
 import pandas as pd
 import yaml
 from omegaconf import DictConfig
+from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
+from bgap.agents.dqn import DQN
 from bgap.agents.policies import baseline, greedy, rollout
 from bgap.analysis.stats import constrained_score
 from bgap.common.config import app, load, validate
@@ -40,6 +42,8 @@ from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, digest
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
+from bgap.experiments.train import train
+from bgap.experiments.training import training_config
 from bgap.traffic.scenario import env_config
 
 SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
@@ -122,7 +126,6 @@ def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, 
 def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.DataFrame:
     """``policy`` on the first ``episodes`` validation episodes (seeds ``val_seed + k``) of
     ``cfg``'s training traffic, its mix drawn as in training."""
-    from bgap.experiments.training import training_config
 
     cfg = training_config(cfg)
     seeds = range(cfg.val_seed, cfg.val_seed + episodes)
@@ -145,8 +148,6 @@ def objective(cfg: SweepConfig, crash: float, speed: float, idle_speed: float) -
 
 
 def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) -> Any:
-    from bgap.agents.dqn import DQN
-    from bgap.experiments.train import train
 
     values = suggest(trial, space)
     budget = [  # the sweep's own profile values (profile.train_steps=... on its command line)
@@ -199,7 +200,6 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
 
 def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     """Run (or continue) the study until it holds ``cfg.trials`` finished trials."""
-    from optuna.trial import TrialState
 
     space = load_space(cfg.sweep)
     root = Path(cfg.root) / "sweeps"

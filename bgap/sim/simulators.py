@@ -65,6 +65,7 @@ def make_vector_env(
 
 
 def _highway_env(config: dict[str, Any], record: bool, render: bool) -> gym.Env:
+    # Imported here: highway-env (and pygame) load only where highway-env's own backend is used.
     from bgap.envs import make_highway
 
     env = make_highway(config, render_mode="rgb_array" if render else None)

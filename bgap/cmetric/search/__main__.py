@@ -12,10 +12,12 @@ use it with ``cmetric=user_tuned``).
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import optuna
 import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 
@@ -53,7 +55,6 @@ ADDED_LATER = {"z": 0.0, "crops_tune": True, "known_truths": False}
 def search(cfg: CMetricSearchConfig, progress: bool = True):
     """Run (or continue) the study to ``cfg.trials`` complete trials; return it and the
     loaded parts."""
-    import optuna
 
     parts = load_parts(cfg)
     tuning = [p for p in parts if p.part == "search"]
@@ -82,7 +83,6 @@ def search(cfg: CMetricSearchConfig, progress: bool = True):
 
 def study_name(cfg: CMetricSearchConfig) -> str:
     """``cmetric-<hash>`` of the tables' bytes and every setting that changes a trial."""
-    import hashlib
 
     tables = {d.path: hashlib.sha1(Path(d.path).read_bytes()).hexdigest() for d in cfg.datasets}
     settings = OmegaConf.to_container(OmegaConf.structured(cfg))

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import optuna
 import pandas as pd
 
 from bgap.cmetric.io import check_scoreable, load_trajectories, read_table
@@ -143,7 +144,6 @@ def start_params(start: CMetricConfig) -> dict[str, Any]:
 
 def params_of(study_params: dict[str, Any], start: CMetricConfig) -> CMetricConfig:
     """The CMetricConfig a finished trial's parameters describe."""
-    import optuna
 
     return suggest(optuna.trial.FixedTrial(study_params), start)
 
