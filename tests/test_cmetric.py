@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import networkx as nx
@@ -336,9 +337,9 @@ def test_command_writes_scores_and_plot(tmp_path, monkeypatch, capsys):
         cwd=work,
     )
     assert done.returncode == 0, done.stderr
-    folder = work / "outputs" / "cmetric" / "scene_default"  # never beside the input
+    folder = work / "outputs" / "cmetric" / "scene_tuned"  # never beside the input
     assert sorted(p.name for p in tmp_path.iterdir()) == ["scene.parquet", "work"]
-    assert str(Path("outputs/cmetric/scene_default/scene_cmetric.csv")) in done.stdout
+    assert str(Path("outputs/cmetric/scene_tuned/scene_cmetric.csv")) in done.stdout
     scores = pd.read_csv(folder / "scene_cmetric.csv")
     assert len(scores) == 15 and "aggressiveness" in scores and "flagged" in scores
     assert (folder / "scene_cmetric_centrality.png").stat().st_size > 10_000
@@ -420,3 +421,17 @@ def test_cmetric_stands_alone_without_simulator_learner_or_hydra():
     )
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert done.returncode == 0, done.stdout + done.stderr
+
+
+def test_the_command_scores_with_the_tuned_preset_and_paper_is_the_papers_reading():
+    """``bgap.cmetric FILE`` uses the best validated preset; ``cmetric=paper`` is the paper's
+    reading, the values of the ``default`` preset that the stored results name."""
+    from bgap.cmetric.params import CMetricConfig
+    from bgap.common.config import validate
+    from bgap.common.presets import load_preset, preset_path
+    from tests.configs import compose
+
+    assert validate(compose("cmetric_app")).cmetric.name == "tuned"
+    paper = load_preset(CMetricConfig, preset_path("cmetric", "paper"))
+    default = load_preset(CMetricConfig, preset_path("cmetric", "default"))
+    assert paper.name == "paper" and replace(paper, name="default") == default
