@@ -76,17 +76,26 @@ def load_model(spec: str | Path) -> Any:
 
     classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3}
     algo, _, rest = str(spec).partition(":")
-    if rest and algo.lower() in classes:
-        path, algo = model_path(rest), algo.lower()
-    else:
-        path = model_path(spec)
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-        found = [name for name, key in _ALGORITHM_KEYS if key in data]
-        if not found:
-            raise ValueError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
-        algo = found[0]
-    return classes[algo].load(path, device="cpu")
+    path = model_path(rest if rest and algo.lower() in classes else spec)
+    try:
+        if rest and algo.lower() in classes:
+            algo = algo.lower()
+        else:
+            with zipfile.ZipFile(path) as archive:
+                data = json.loads(archive.read("data"))
+            found = [name for name, key in _ALGORITHM_KEYS if key in data]
+            if not found:
+                raise ConfigError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
+            algo = found[0]
+        return classes[algo].load(path, device="cpu")
+    except (zipfile.BadZipFile, KeyError, ValueError, EOFError, OSError, RuntimeError) as err:
+        if isinstance(err, ConfigError):
+            raise
+        raise ConfigError(
+            f"{path} is not a readable model ({type(err).__name__}: "
+            f"{str(err).splitlines()[0][:120] if str(err) else 'truncated'}); give a model.zip "
+            "saved by bgap.train or Stable-Baselines3"
+        ) from None
 
 
 def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:

@@ -31,11 +31,12 @@ from __future__ import annotations
 import argparse
 
 from bgap.analysis.plots import make_figures
+from bgap.common.cli import OneLineParser
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m bgap.figures",
+    parser = OneLineParser(
+        prog="bgap.figures",
         description=__doc__.split("\n\n")[0] + " What it writes: docs/pipeline.md.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )

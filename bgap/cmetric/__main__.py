@@ -27,7 +27,7 @@ from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.runs import save_run_metadata
+from bgap.common.runs import differing_keys, save_run_metadata
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -72,12 +72,16 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     folder = (
         None if as_file else Path(cfg.out or f"outputs/cmetric/{source.stem}_{cfg.cmetric.name}")
     )
+    out = Path(cfg.out) if as_file else folder / f"{source.stem}_cmetric.csv"
+    if out.resolve() == source.resolve():
+        raise ConfigError(f"out={cfg.out} is the input table; the scores go to another file")
     table = load_trajectories(source, fps=cfg.fps)  # a bad table fails before anything is written
     check_scoreable(table)
     if folder is not None:
         save_run_metadata(folder, dcfg)  # refuses a folder of other settings before scoring
+    else:
+        _refuse_other_scores(out, dcfg)
     result = score_trajectories(table, cfg.cmetric, fps=cfg.fps, progress=True)
-    out = Path(cfg.out) if as_file else folder / f"{source.stem}_cmetric.csv"
     out.parent.mkdir(parents=True, exist_ok=True)
     stem = out.with_suffix("")
     if out.suffix == ".parquet":
@@ -102,6 +106,27 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
             print(f"ROC AUC (aggressive vs conservative): {label_auc(vehicles):.3f}")
         except ValueError:
             pass
+
+
+def _refuse_other_scores(out: Path, dcfg: DictConfig) -> None:
+    """A scores file may be rewritten only by the same settings: one that holds scores of
+    other settings, or a file no bgap command wrote (no ``<stem>_config.yaml``), is refused."""
+    if not out.exists():
+        return
+    stored = out.with_name(f"{out.stem}_config.yaml")
+    if not stored.exists():
+        raise ConfigError(
+            f"out={out} exists and was not written by bgap.cmetric; choose a new file"
+        )
+    keys = differing_keys(
+        OmegaConf.to_container(OmegaConf.load(stored), resolve=True),
+        OmegaConf.to_container(dcfg, resolve=True),
+        ignore=("out",),
+    )
+    if keys:
+        raise ConfigError(
+            f"out={out} holds scores of other settings ({', '.join(keys[:4])}); choose another file"
+        )
 
 
 @app("cmetric_app", "bgap.cmetric", SCHEMAS, "nothing was written; rerun the command")

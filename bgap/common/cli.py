@@ -9,6 +9,8 @@ that are not known mistakes (bugs) keep their traceback.
 
 from __future__ import annotations
 
+import argparse
+import math
 import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
@@ -23,7 +25,7 @@ def one_line(err: BaseException) -> str:
     """An exception (and its cause) as one line: Hydra's and OmegaConf's messages span
     several lines and end with the config search path, which a user does not need."""
     text = str(err)
-    cause = err.__cause__ or err.__context__
+    cause = err.__cause__ or (None if err.__suppress_context__ else err.__context__)
     if cause is not None and str(cause) not in text:
         text += "\n" + str(cause)
     parts: list[str] = []
@@ -80,3 +82,26 @@ def bare_first_argument(*keys: str) -> None:
         if len(sys.argv) <= i or "=" in sys.argv[i] or sys.argv[i].startswith("-"):
             return
         sys.argv[i] = f"{key}={sys.argv[i]}"
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse for the commands that take ``--options`` (parity, bench, figures,
+    pipeline): a bad option is one line and exit status 2, as with every other command."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(self.prog, f"{message} (python -m {self.prog} --help lists the options)")
+
+
+def positive(kind: type = float) -> Callable[[str], Any]:
+    """An argparse type: a finite number > 0 (``kind``: float or int)."""
+
+    def parse(text: str) -> Any:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not (math.isfinite(value) and value > 0):
+            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
+        return value
+
+    return parse

@@ -12,6 +12,7 @@ composed config into objects, first thing in every entry point, before any work 
 from __future__ import annotations
 
 import functools
+import math
 import sys
 import warnings
 from collections.abc import Callable, Iterable
@@ -25,6 +26,7 @@ from hydra.core.global_hydra import GlobalHydra
 from omegaconf import DictConfig, OmegaConf
 
 from bgap.common.cli import run
+from bgap.common.errors import ConfigError, check
 from bgap.common.presets import CONF_DIR
 
 Schema = tuple[Any, str, type]
@@ -52,11 +54,32 @@ def _store_schemas(schemas: tuple[Schema, ...]) -> None:
         cs.store(group=group, name=name, node=node)
 
 
+SEED_MAX = 2**32 - 1
+"""The largest seed numpy's and SB3's generators accept."""
+
+
+def _check_numbers(node: Any, prefix: str = "") -> None:
+    """Every number of a config finite, and every ``*seed`` within :data:`SEED_MAX`: checked
+    here once for all commands, before anything is written (a NaN duration or a seed numpy
+    refuses would otherwise fail mid-run, after the run folder was made)."""
+    items = node.items() if isinstance(node, dict) else enumerate(node)
+    for key, value in items:
+        name = f"{prefix}{key}" if isinstance(node, dict) else f"{prefix[:-1]}[{key}]"
+        if isinstance(value, (dict, list)):
+            _check_numbers(value, f"{name}.")
+        elif isinstance(value, float) and not math.isfinite(value):
+            check(False, name, value, "must be a finite number")
+        elif isinstance(value, int) and not isinstance(value, bool) and "seed" in name:
+            check(value >= 0, name, value, "must be >= 0 (numpy seeds are non-negative)")
+            check(value <= SEED_MAX, name, value, f"must be <= {SEED_MAX} (numpy's largest seed)")
+
+
 def validate(cfg: DictConfig) -> Any:
     """Instantiate the composed config as dataclasses, running every range check.
 
     Raises :class:`ConfigError` naming the offending key.
     """
+    _check_numbers(OmegaConf.to_container(cfg, resolve=True))
     return OmegaConf.to_object(cfg)
 
 
@@ -74,6 +97,17 @@ def load(cfg: DictConfig) -> Any:
     """:func:`validate` for command-line entry points; a bad value raises
     :class:`ConfigError`, which :func:`app` reports in one line."""
     return validate(cfg)
+
+
+IGNORED_BY_HYDRA = ("hydra.run.dir", "hydra.sweep.dir", "hydra.output_subdir")
+"""Hydra's output settings, which bgap's commands do not use (:mod:`bgap.common.runs`)."""
+
+
+def _refuse_ignored(arg: str) -> None:
+    raise ConfigError(
+        f"{arg} is not used: bgap writes no Hydra output folder; give the command's own "
+        "output setting (out=, run_dir= or root=) instead"
+    )
 
 
 def app(
@@ -101,6 +135,9 @@ def app(
         def main() -> Any:
             register_configs(schemas)
             args = sys.argv[1:]
+            ignored = [a for a in args if a.split("=")[0].lstrip("+~") in IGNORED_BY_HYDRA]
+            if ignored:  # switched off in every config: bgap names its folders itself
+                return run(prog, lambda: _refuse_ignored(ignored[0]), on_interrupt)
             if any(a.startswith(("-", "hydra.", "hydra/", "+hydra", "~hydra")) for a in args):
                 return hydra_task()
             return run(prog, lambda: task(compose(config_name, args, schemas)), on_interrupt)

@@ -9,16 +9,23 @@ folders (``bgap.run``: both policies and the results).
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
+import os
 import shlex
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from omegaconf import OmegaConf
 
 from bgap.common.errors import ConfigError
+
+LOCK = ".lock"
+"""The advisory lock file of a folder a command is writing (:func:`exclusive`)."""
 
 VOLATILE = ("resume", "workers", "root", "out", "run_dir")
 """Settings that do not change what a folder holds (where it is, how fast it is made)."""
@@ -93,7 +100,8 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
     conf = cfg if OmegaConf.is_config(cfg) else OmegaConf.structured(cfg)
     current = OmegaConf.to_container(conf, resolve=True)
     stored_path = out / "config.yaml"
-    if stored_path.exists():
+    refuse_foreign(out)
+    if stored_path.exists() and not only_metadata(out):
         stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
         keys = differing_keys(stored, current, ignore)
         if keys:
@@ -107,8 +115,108 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
                 "output folder (or delete that one)"
             )
     out.mkdir(parents=True, exist_ok=True)
-    stored_path.write_text(OmegaConf.to_yaml(conf, resolve=True))
+    write_atomic(stored_path, OmegaConf.to_yaml(conf, resolve=True))
     # orig_argv keeps "-m bgap.x"; argv[0] would be the module's file path.
     command = " ".join(shlex.quote(a) for a in ["python", *sys.orig_argv[1:]])
-    (out / "command.txt").write_text(command + "\n")
+    write_atomic(out / "command.txt", command + "\n")
     return out
+
+
+METADATA = ("config.yaml", "command.txt", LOCK)
+
+
+def only_metadata(folder: Path) -> bool:
+    """Whether ``folder`` holds nothing but a command's metadata (an interrupted command's
+    before it wrote anything): another command may take it over, nothing is lost."""
+    return all(p.name in METADATA for p in folder.iterdir())
+
+
+def refuse_foreign(folder: Path) -> None:
+    """Refuse an output folder that holds files no bgap command wrote (no ``config.yaml``
+    beside them): they are the user's, and a command would overwrite them."""
+    if not folder.is_dir() or (folder / "config.yaml").exists():
+        return
+    files = sorted(p.name for p in folder.iterdir() if p.is_file() and p.name != LOCK)
+    if files:
+        shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
+        raise ConfigError(
+            f"{folder} holds files no bgap command wrote ({shown}); choose a new or empty "
+            "output folder"
+        )
+
+
+def write_atomic(path: Path, data: str | bytes | Callable[[Path], Any]) -> Path:
+    """Write ``path`` whole or not at all: into a temporary name beside it, then renamed
+    (a kill leaves the previous file or none, never half of one). ``data``: text, bytes,
+    or a function that writes the file at the path it is given."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        if callable(data):
+            data(tmp)
+        elif isinstance(data, bytes):
+            tmp.write_bytes(data)
+        else:
+            tmp.write_text(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+_HELD: dict[Path, int] = {}
+
+
+@contextmanager
+def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
+    """Hold an advisory lock on ``folder`` while this process writes it. Another process
+    holding it: refused in one line naming that process (``wait``: wait for it instead).
+    Re-entrant within a process (``bgap.run`` locks the run folders its trainings lock)."""
+    folder = Path(folder).resolve()
+    if folder in _HELD:
+        _HELD[folder] += 1
+        try:
+            yield
+        finally:
+            _HELD[folder] -= 1
+        return
+    folder.mkdir(parents=True, exist_ok=True)
+    handle = _lock(folder / LOCK, wait)
+    try:
+        handle.seek(0)
+        handle.truncate()
+        handle.write(f"process {os.getpid()} ({' '.join(sys.argv[:1] + sys.argv[1:3])})\n")
+        handle.flush()
+        _HELD[folder] = 1
+        yield
+    finally:
+        _HELD.pop(folder, None)
+        # removed while still held, so that no lock file is left in a finished folder (a
+        # DVC output): a process waiting on this file sees it gone and locks the new one
+        (folder / LOCK).unlink(missing_ok=True)
+        fcntl.flock(handle, fcntl.LOCK_UN)
+        handle.close()
+
+
+def _lock(path: Path, wait: bool) -> Any:
+    """The lock file at ``path``, opened and locked; retried when the holder removed it
+    meanwhile (the locked file must still be the one at the path)."""
+    while True:
+        handle = open(path, "a+")  # noqa: SIM115 - held open while locked
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
+        except BlockingIOError:
+            handle.seek(0)
+            holder = handle.read().strip() or "another process"
+            handle.close()
+            raise ConfigError(
+                f"{path.parent} is being written by {holder}; wait for it to finish or "
+                "choose another output folder"
+            ) from None
+        try:
+            same = os.fstat(handle.fileno()).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return handle
+        handle.close()

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.cmetric.io import TrajectoryError
+from bgap.cmetric.io import TrajectoryError, read_csv
 from bgap.sim.recorder import COLUMNS
 
 TRACK_COLUMNS = ("frame", "id", "x", "y", "width", "height", "xVelocity", "yVelocity", "laneId")
@@ -52,7 +52,7 @@ def recordings(path: str | Path) -> list[Path]:
 def _read(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     if not path.exists():
         raise TrajectoryError(f"{path}: no such file (a highD recording has three files)")
-    table = pd.read_csv(path)
+    table = read_csv(path)
     missing = [c for c in columns if c not in table]
     if missing:
         raise TrajectoryError(f"{path}: missing highD column(s) {missing}")

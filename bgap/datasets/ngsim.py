@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.cmetric.io import TrajectoryError, finite_difference_velocity
+from bgap.cmetric.io import TrajectoryError, finite_difference_velocity, read_csv
 from bgap.sim.recorder import COLUMNS
 
 FEET = 0.3048
@@ -46,10 +46,10 @@ def read(path: str | Path) -> pd.DataFrame:
     if not path.is_file():
         raise TrajectoryError(f"{path}: no such file; give an NGSIM trajectory .csv or .txt")
     if path.suffix.lower() == ".txt":
-        table = pd.read_csv(path, sep=r"\s+", header=None)
+        table = read_csv(path, sep=r"\s+", header=None)
         table = table.iloc[:, : len(NAMES)].set_axis(NAMES, axis=1)
     else:
-        table = pd.read_csv(path, low_memory=False)
+        table = read_csv(path, low_memory=False)
     needed = ["Vehicle_ID", "Frame_ID", "Local_X", "Local_Y", "v_Class", "Lane_ID"]
     missing = [c for c in needed if c not in table]
     if missing:

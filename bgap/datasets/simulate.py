@@ -10,14 +10,16 @@ per episode: crash, ego speed, lane changes, ...), ``config.yaml``, ``command.tx
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pandas as pd
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from bgap.agents.policies import rollout
+from bgap.agents.policies import load_model, rollout
 from bgap.common.config import app, load
-from bgap.common.runs import save_run_metadata
-from bgap.common.vocab import LANE_WIDTH
+from bgap.common.runs import exclusive, save_run_metadata, write_atomic
+from bgap.common.vocab import BASELINES, LANE_WIDTH
 from bgap.datasets.config import SCHEMAS, SimulateConfig
 from bgap.sim.rollout import Rollout
 from bgap.traffic.scenario import env_config
@@ -77,10 +79,22 @@ def simulate(
     return record(cfg, episodes, progress).trajectories
 
 
-@app("simulate", "bgap.simulate", SCHEMAS, "nothing was written; rerun the command")
+INTERRUPTED = (
+    "no table was written (the output folder holds only its config.yaml and command.txt, "
+    "which do not block a rerun); rerun the command"
+)
+
+
+@app("simulate", "bgap.simulate", SCHEMAS, INTERRUPTED)
 def main(dcfg: DictConfig) -> None:
     cfg: SimulateConfig = load(dcfg)
-    out = save_run_metadata(cfg.out, dcfg)
+    if cfg.policy not in BASELINES:
+        load_model(cfg.policy)  # a file that is no model fails before anything is written
+    with exclusive(cfg.out):
+        _write(cfg, save_run_metadata(cfg.out, dcfg))
+
+
+def _write(cfg: SimulateConfig, out: Path) -> None:
     result = record(cfg, render=cfg.render)
     if result.images:
         # Imported here: imageio only when a GIF is asked for (render=true).
@@ -89,8 +103,9 @@ def main(dcfg: DictConfig) -> None:
         imageio.mimsave(out / "episode0.gif", result.images, duration=0.2, loop=0)
     table = result.trajectories
     path = out / "trajectories.parquet"
-    table.to_parquet(path, index=False)
-    result.episodes.to_csv(out / "episodes.csv", index=False)
+    # each file whole or not at all: a kill never leaves half a table
+    write_atomic(path, lambda tmp: table.to_parquet(tmp, index=False))
+    write_atomic(out / "episodes.csv", lambda tmp: result.episodes.to_csv(tmp, index=False))
     background = table[~table.is_ego]
     summary = background.groupby("label").agg(mean_speed=("speed", "mean"))
     # Vehicle ids repeat in every episode: count (episode, vehicle) pairs.

@@ -54,6 +54,16 @@ class SumoDriver:
     lc_cooperative: float = 1.0
     lc_keep_right: float = 1.0
 
+    def __post_init__(self) -> None:
+        # SUMO's own ranges (its vType documentation): it would reject these at start-up,
+        # after the output folder was made, with a message in SUMO's terms
+        for key in ("speed_factor", "tau", "accel", "decel"):
+            check(getattr(self, key) > 0, key, getattr(self, key), "must be > 0")
+        for key in ("speed_dev", "min_gap", "lc_speed_gain", "lc_cooperative", "lc_keep_right"):
+            check(getattr(self, key) >= 0, key, getattr(self, key), "must be >= 0")
+        check(0 <= self.sigma <= 1, "sigma", self.sigma, "must lie in [0, 1] (driver imperfection)")
+        check(self.lc_assertive > 0, "lc_assertive", self.lc_assertive, "must be > 0")
+
     def vtype(self, name: str, car_following: str) -> str:
         return (
             f'<vType id="{name}" carFollowModel="{car_following}" '

@@ -9,6 +9,7 @@ import pickle
 import signal
 import threading
 from collections.abc import Callable, Sequence
+from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -27,8 +28,15 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.common.errors import ConfigError, Interrupted, check
+from bgap.common.runs import exclusive
 from bgap.experiments.config import ExperimentConfig
-from bgap.experiments.training import build_model, open_run_dir, run_dir_for, training_config
+from bgap.experiments.training import (
+    build_model,
+    open_run_dir,
+    read_checkpoint,
+    run_dir_for,
+    training_config,
+)
 from bgap.sim.simulators import make_vector_env
 from bgap.traffic.scenario import env_config
 
@@ -100,10 +108,20 @@ def train_batched(
         dirs = [Path(first.run_dir) / f"{c.env.name}-{c.policy}-s{c.seed}" for c in cfgs]
     if len(set(dirs)) < len(dirs):
         raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
+    with ExitStack() as locks:  # each member's folder, while this process writes it
+        for d in sorted(set(dirs)):
+            locks.enter_context(exclusive(d))
+        _open_and_train(cfgs, dirs, progress, sb3_streams)
+    return dirs  # every member's, the finished ones' too
+
+
+def _open_and_train(
+    cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool, sb3_streams: bool
+) -> None:
     opened = [open_run_dir(c, d) for c, d in zip(cfgs, dirs, strict=True)]
     todo = [i for i, (_, status) in enumerate(opened) if status != "finished"]
     if not todo:
-        return dirs
+        return
     resuming = [opened[i][1] == "resume" for i in todo]
     for i, res in zip(todo, resuming, strict=True):
         if res and not (dirs[i] / "checkpoints" / "learner.pt").exists():
@@ -112,7 +130,6 @@ def train_batched(
             )
     _train_members([cfgs[i] for i in todo], [dirs[i] for i in todo], resuming, progress,
                    sb3_streams)  # fmt: skip
-    return dirs  # every member's, the finished ones' too
 
 
 def _train_members(
@@ -225,9 +242,11 @@ class _Members:
         backend) environments restored from its checkpoint."""
         cfgs, dirs, e = self.cfgs, self.dirs, self.e
         states = [
-            pickle.loads((d / "checkpoints" / "state.pkl").read_bytes()) if res else None
+            read_checkpoint(d / "checkpoints", lambda d=d: pickle.loads(
+                (d / "checkpoints" / "state.pkl").read_bytes()
+            )) if res else None
             for d, res in zip(dirs, resuming, strict=True)
-        ]
+        ]  # fmt: skip
         obs = np.zeros((len(cfgs), e, *space.shape), dtype=np.float32)
         for g in self.groups:
             seeds = []
@@ -241,9 +260,11 @@ class _Members:
                 obs[k] = first_obs[g.envs_of(pos)]
                 if states[k] is None:
                     continue
-                self.learner.load_member_state(k, torch.load(
-                    dirs[k] / "checkpoints" / "learner.pt", weights_only=False
-                ))  # fmt: skip
+                ckpt = dirs[k] / "checkpoints"
+                member = read_checkpoint(
+                    ckpt, lambda ckpt=ckpt: torch.load(ckpt / "learner.pt", weights_only=False)
+                )
+                self.learner.load_member_state(k, member)
                 self.monitors[k].restore(states[k])
                 if states[k]["env"] is not None:
                     g.venv.load_state_dict(states[k]["env"], envs=g.envs_of(pos))

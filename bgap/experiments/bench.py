@@ -28,6 +28,7 @@ from bgap.cmetric.centrality import Scene, centralities
 from bgap.cmetric.io import load_trajectories
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.reference import centralities_networkx
+from bgap.common.cli import OneLineParser, positive
 from bgap.common.config import validate
 from bgap.common.presets import load_preset, preset_path
 from bgap.datasets.config import compose as compose_scene
@@ -391,17 +392,25 @@ def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: i
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        prog="python -m bgap.bench",
+    parser = OneLineParser(
+        prog="bgap.bench",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("what", choices=sorted(BENCHES))
-    parser.add_argument("--seconds", type=float, default=10.0, help="wall time per measurement")
-    parser.add_argument("--envs", type=int, default=64, help="sim: batched environments")
-    parser.add_argument("--threads", type=int, default=2, help="sim: threads for both peers")
     parser.add_argument(
-        "--members", type=int, nargs="+", default=[1, 4, 10, 20], help="learn: values of K"
+        "--seconds", type=positive(float), default=10.0, help="wall time per measurement"
+    )
+    parser.add_argument("--envs", type=positive(int), default=64, help="sim: batched environments")
+    parser.add_argument(
+        "--threads", type=positive(int), default=2, help="sim: threads for both peers"
+    )
+    parser.add_argument(
+        "--members",
+        type=positive(int),
+        nargs="+",
+        default=[1, 4, 10, 20],
+        help="learn: values of K",
     )
     args = parser.parse_args(argv)
     if args.what == "sim":

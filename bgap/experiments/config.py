@@ -68,6 +68,8 @@ class GridConfig:
     radii: list[float] = field(default_factory=list)
 
     def __post_init__(self) -> None:
+        self.mixes = [m + 0.0 for m in self.mixes]  # -0.0 is 0.0
+        self.radii = [r + 0.0 for r in self.radii]
         for m in self.mixes:
             check(0 <= m <= 1, "grid.mixes", self.mixes, "every mix must lie in [0, 1]")
         for r in self.radii:

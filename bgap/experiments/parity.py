@@ -19,7 +19,7 @@ from tqdm.auto import tqdm
 
 from bgap.agents.policies import rollout
 from bgap.analysis.stats import t_interval, wilson_interval
-from bgap.common.cli import fail
+from bgap.common.cli import OneLineParser, fail, positive
 from bgap.common.config import validate
 from bgap.common.plotting import pyplot
 from bgap.common.vocab import CLASSES
@@ -146,16 +146,21 @@ def plot(table: pd.DataFrame, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> None:
 
-    parser = argparse.ArgumentParser(
-        prog="python -m bgap.parity",
+    parser = OneLineParser(
+        prog="bgap.parity",
         description=__doc__.splitlines()[0],
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     parser.add_argument("--env", default="dense", help="env preset (bgap/conf/env)")
     parser.add_argument("--mixes", default="0,0.5,1", help="aggressive fractions, comma-separated")
-    parser.add_argument("--episodes", type=int, default=200, help="episodes per backend and mix")
     parser.add_argument(
-        "--duration", type=float, default=None, help="episode length [s]; default the env's"
+        "--episodes", type=positive(int), default=200, help="episodes per backend and mix"
+    )
+    parser.add_argument(
+        "--duration",
+        type=positive(float),
+        default=None,
+        help="episode length [s]; default the env's",
     )
     parser.add_argument("--seed", type=int, default=0, help="episode k is seeded seed + k")
     parser.add_argument(

@@ -11,7 +11,6 @@ byte-identical outputs (see :func:`relock`).
 
 from __future__ import annotations
 
-import argparse
 import ast
 import filecmp
 import os
@@ -23,6 +22,8 @@ import tempfile
 from pathlib import Path
 
 import yaml
+
+from bgap.common.cli import OneLineParser
 
 ROOT = Path(__file__).resolve().parents[2]
 """The repository (this file is bgap/experiments/pipeline.py)."""
@@ -133,13 +134,23 @@ def write_code_deps(dvc_yaml: Path = ROOT / "dvc.yaml") -> list[str]:
     return changed
 
 
+REHEARSAL_GRID = """defaults:
+  - base_grid
+name: rehearsal
+mixes: [0.0, 1.0]
+densities: [sparse, dense]
+radii: [180.0, 30.0]
+"""
+"""The evaluation grid of a rehearsal: the tiny grid at both densities."""
+
+
 def rehearsal(params: dict) -> None:
     """Shrink ``params`` (params.yaml) in place to a rehearsal of every stage that finishes in
     minutes: the tiny profile and grid, one seed per training, a few trials and episodes.
     Every stage (and every ``foreach`` item) is kept, so each has a rehearsal."""
-    # the tiny grid at both densities: the study trains at both (DVC pastes the string into
-    # the evaluate stages' commands, where the second override extends the preset)
-    params.update(profile="tiny", grid="tiny grid.densities=[sparse,dense]", eval_episodes=2)
+    # the tiny grid at both densities, since the study trains at both (REHEARSAL_GRID,
+    # written into the rehearsal's copy only)
+    params.update(profile="tiny", grid="rehearsal", eval_episodes=2)
     validate = " profile.eval_every_episodes=2 profile.eval_during_training=2"
     for item in params["study"].values():
         item.update(seeds="[0]", settings=item["settings"] + validate)
@@ -160,6 +171,7 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
 
     params = yaml.safe_load((tree / "params.yaml").read_text())
     rehearsal(params)
+    (tree / "bgap/conf/grid/rehearsal.yaml").write_text(REHEARSAL_GRID)
     (tree / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     env = {**os.environ, "PYTHONPATH": str(tree)}
     git = ["git", "-c", "user.email=relock@bgap", "-c", "user.name=relock"]
@@ -269,7 +281,7 @@ def relock(
 
 def main(argv: list[str] | None = None) -> None:
 
-    parser = argparse.ArgumentParser(prog="bgap.pipeline", description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="bgap.pipeline", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     deps = sub.add_parser("deps", help="compare each stage's code deps with what it imports")
     deps.add_argument("--write", action="store_true", help="rewrite dvc.yaml's code deps")

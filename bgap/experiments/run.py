@@ -10,9 +10,8 @@ the scripted baselines on identical seeded episodes at the chosen mix and radius
 
 from __future__ import annotations
 
-import fcntl
 import time
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from omegaconf import DictConfig
 from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import beats_idle
 from bgap.common.config import app, load
-from bgap.common.runs import VOLATILE, digest, model_file, save_run_metadata
+from bgap.common.runs import VOLATILE, digest, exclusive, model_file, save_run_metadata
 from bgap.common.vocab import POLICIES
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
@@ -52,19 +51,6 @@ def results_dir(cfg: ExperimentConfig) -> Path:
     return Path(cfg.root) / "results" / name
 
 
-@contextmanager
-def _exclusive(run_dir: Path):
-    """An advisory lock on a run folder, held while it is trained or checked."""
-
-    run_dir.mkdir(parents=True, exist_ok=True)
-    with open(run_dir / ".lock", "w") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(handle, fcntl.LOCK_UN)
-
-
 def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     start = time.perf_counter()
     seeds = cfg.seeds or [cfg.seed]
@@ -75,7 +61,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     # one trains it, the others wait for it and reuse it. (Locks taken in one order.)
     with ExitStack() as locks:
         for d in sorted(set(dirs)):
-            locks.enter_context(_exclusive(d))
+            locks.enter_context(exclusive(d, wait=True))
         for (seed, policy), d in zip(pairs, dirs, strict=True):
             cached = (d / "model.zip").exists()
             print(f"[{policy} s{seed}] {'reusing' if cached else 'training'} {d}")

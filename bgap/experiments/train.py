@@ -36,10 +36,18 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.common.config import app, load
-from bgap.common.errors import Interrupted
+from bgap.common.errors import ConfigError, Interrupted
+from bgap.common.runs import exclusive
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
-from bgap.experiments.training import build_model, member_configs, open_run_dir, training_config
+from bgap.experiments.training import (
+    build_model,
+    member_configs,
+    open_run_dir,
+    read_checkpoint,
+    run_dir_for,
+    training_config,
+)
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.simulators import make_vector_env
 from bgap.sim.vector import VectorHighway
@@ -82,6 +90,11 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
     if cfg.learner == "batched":
         return train_batched([cfg], progress)[0]
     cfg = training_config(cfg)
+    with exclusive(Path(cfg.run_dir) if cfg.run_dir else run_dir_for(cfg)):
+        return _train(cfg, progress, callbacks)
+
+
+def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
     run_dir, status = open_run_dir(cfg)
     if status == "finished":
         return run_dir
@@ -101,17 +114,20 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
         eval_seed=cfg.val_seed,  # validation episodes, never the test ones
     )
     if resuming:
-        state = pickle.loads((ckpt / "state.pkl").read_bytes())
+        state = read_checkpoint(ckpt, lambda: pickle.loads((ckpt / "state.pkl").read_bytes()))
         venv = _vector_highway(env)
         exact = venv is not None and state["env"] is not None
-        model = DQN.load(
-            ckpt / "model.zip",
-            env=env,
-            device="cpu",
-            tensorboard_log=str(run_dir / "tb"),
-            force_reset=not exact,
+        model = read_checkpoint(
+            ckpt,
+            lambda: DQN.load(
+                ckpt / "model.zip",
+                env=env,
+                device="cpu",
+                tensorboard_log=str(run_dir / "tb"),
+                force_reset=not exact,
+            ),
         )
-        model.load_replay_buffer(ckpt / "replay.pkl")
+        read_checkpoint(ckpt, lambda: model.load_replay_buffer(ckpt / "replay.pkl"))
         monitor.restore(state)
         if exact:
             venv.load_state_dict(state["env"])
@@ -157,6 +173,13 @@ def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()
 def main(dcfg: DictConfig) -> None:
     cfg: ExperimentConfig = load(dcfg)
     cfgs = member_configs(cfg)
+    if cfg.resume:  # a user's resume=true with nothing to resume is a typo, not a new run
+        where = [Path(cfg.run_dir)] if cfg.run_dir else [run_dir_for(c) for c in cfgs]
+        if not any(d.exists() for d in where):
+            raise ConfigError(
+                f"resume=true: nothing to resume at {where[0]} (no such folder); check "
+                "run_dir, or drop resume=true to start a new training"
+            )
     if cfg.learner == "batched":
         dirs = train_batched(cfgs)
     else:

@@ -3,9 +3,12 @@ identity (what changes what is learnt) and run folder, and the SB3 model it is s
 
 from __future__ import annotations
 
+import pickle
+import zipfile
+from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from omegaconf import OmegaConf
 
@@ -25,6 +28,9 @@ NOT_LEARNT = (
 )  # fmt: skip
 """Settings of a training's config that do not change what it learns (run folder checks).
 (``val_seed`` only moves the periodic evaluations' episodes; ``eval_seed`` the tests'.)"""
+
+
+T = TypeVar("T")
 
 
 def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
@@ -135,3 +141,20 @@ def member_configs(cfg: ExperimentConfig) -> list[ExperimentConfig]:
         for policy in (cfg.policies or [cfg.policy])
         for seed in (cfg.seeds or [cfg.seed])
     ]
+
+
+DAMAGED = (pickle.UnpicklingError, EOFError, zipfile.BadZipFile, KeyError, ValueError, OSError)
+"""What reading a truncated or corrupt checkpoint file raises (pickle, zip, torch)."""
+
+
+def read_checkpoint(ckpt: Path, read: Callable[[], T]) -> T:
+    """``read()`` of files in the checkpoint folder ``ckpt``; a damaged file is one line
+    saying so and how to go on, not a traceback."""
+    try:
+        return read()
+    except DAMAGED + (RuntimeError,) as err:
+        raise ConfigError(
+            f"{ckpt} holds a damaged checkpoint ({type(err).__name__}: "
+            f"{str(err).splitlines()[0][:120] if str(err) else 'unreadable'}); restore it, or "
+            "delete that folder and train again without resume=true"
+        ) from None

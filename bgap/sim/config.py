@@ -31,6 +31,8 @@ class BaseConfig:
     model batched and compiled, ~1000x faster on dense traffic)."""
 
     def __post_init__(self) -> None:
+        self.mix += 0.0  # -0.0 is 0.0: one folder name, one result
+        self.radius += 0.0
         check(self.backend in BACKENDS, "backend", self.backend, "use highway or vector")
         check(self.seed >= 0, "seed", self.seed, "must be >= 0 (numpy seeds are non-negative)")
         check(

@@ -1,0 +1,290 @@
+"""Inputs nobody listed (issue 34): outputs that would destroy inputs or earlier results are
+refused, run folders are locked while written, an interrupted command's metadata does not
+block a rerun, and generated malformed tables and settings end in one known error or work."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from bgap.cmetric.io import load_trajectories
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError, TrajectoryError
+from tests.configs import compose
+from tests.test_bad_inputs import _command
+
+ROOT = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}  # this checkout's bgap in child processes
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha1(path.read_bytes()).hexdigest()
+
+
+def _table(path: Path) -> Path:
+    rows = [(v, f, f * (1.0 + v % 3), 3.5 * (v % 3)) for v in range(6) for f in range(30)]
+    pd.DataFrame(rows, columns=["vehicle_id", "frame", "x", "y"]).to_csv(path, index=False)
+    return path
+
+
+def test_cmetric_refuses_to_write_its_scores_over_its_input(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    runs = _table(tmp_path / "runs.csv")
+    before = _digest(runs)
+    status, err = _command("cmetric", ["input=runs.csv", "out=runs.csv"], monkeypatch, capsys)
+    assert status == 2 and "is the input table" in err and err.count("\n") == 1, err
+    assert _digest(runs) == before
+
+
+def test_cmetric_keeps_scores_of_other_settings_and_a_users_file(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    _table(tmp_path / "runs.csv")
+    assert _command("cmetric", ["input=runs.csv", "out=s.csv"], monkeypatch, capsys)[0] == 0
+    first = _digest(tmp_path / "s.csv")
+    status, err = _command(
+        "cmetric", ["input=runs.csv", "out=s.csv", "cmetric=paper"], monkeypatch, capsys
+    )
+    assert status == 2 and "holds scores of other settings" in err, err
+    assert _digest(tmp_path / "s.csv") == first
+    # the same settings again rewrite the same scores
+    assert _command("cmetric", ["input=runs.csv", "out=s.csv"], monkeypatch, capsys)[0] == 0
+    (tmp_path / "mine.csv").write_text("a user's own table\n")
+    status, err = _command("cmetric", ["input=runs.csv", "out=mine.csv"], monkeypatch, capsys)
+    assert status == 2 and "was not written by bgap.cmetric" in err, err
+    assert (tmp_path / "mine.csv").read_text() == "a user's own table\n"
+
+
+def test_simulate_refuses_a_folder_of_a_users_files(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "trajectories.parquet").write_text("mine")
+    (user / "episodes.csv").write_text("mine too")
+    status, err = _command("simulate", ["out=mine", "episodes=1"], monkeypatch, capsys)
+    assert status == 2 and "holds files no bgap command wrote" in err, err
+    assert (user / "trajectories.parquet").read_text() == "mine"
+    assert sorted(p.name for p in user.iterdir()) == ["episodes.csv", "trajectories.parquet"]
+
+
+def test_an_interrupted_commands_metadata_does_not_block_a_rerun(tmp_path, monkeypatch, capsys):
+    """Ctrl-C during bgap.simulate leaves config.yaml and command.txt only, and says so; a
+    rerun with other settings then runs (nothing of a result would be lost)."""
+    import bgap.datasets.simulate as simulate
+
+    monkeypatch.chdir(tmp_path)
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(simulate, "record", ctrl_c)
+    status, err = _command("simulate", ["out=sim", "episodes=1"], monkeypatch, capsys)
+    assert status == 130 and "no table was written" in err and "do not block a rerun" in err
+    assert sorted(p.name for p in (tmp_path / "sim").iterdir()) == ["command.txt", "config.yaml"]
+    monkeypatch.undo()
+    monkeypatch.chdir(tmp_path)
+    status, err = _command(
+        "simulate", ["out=sim", "episodes=1", "env=sparse", "seed=5"], monkeypatch, capsys
+    )
+    assert status == 0, err
+    assert (tmp_path / "sim" / "trajectories.parquet").exists()
+
+
+def test_a_run_folder_being_trained_is_refused_naming_the_process(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import time; from bgap.common.runs import exclusive\n"
+         "with exclusive('run'):\n    print('held', flush=True); time.sleep(60)"],
+        cwd=tmp_path, stdout=subprocess.PIPE, text=True, env=ENV,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        status, err = _command("train", ["profile=tiny", "run_dir=run"], monkeypatch, capsys)
+        assert status == 2 and err.count("\n") == 1, err
+        assert f"is being written by process {holder.pid}" in err, err
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not (tmp_path / "run" / "config.yaml").exists()  # refused before writing
+
+
+def test_the_lock_is_released_and_leaves_no_file(tmp_path):
+    from bgap.common.runs import LOCK, exclusive
+
+    with exclusive(tmp_path / "out"):
+        assert (tmp_path / "out" / LOCK).exists()
+        with exclusive(tmp_path / "out"):  # re-entrant in one process (bgap.run, train)
+            pass
+    assert list((tmp_path / "out").iterdir()) == []
+    with exclusive(tmp_path / "out"):  # and taken again
+        pass
+
+
+def test_minus_zero_is_zero():
+    from bgap.experiments.run import results_dir
+
+    a, b = (validate(compose("run", [f"mix={m}", "grid.mixes=[-0.0]"])) for m in ("-0.0", "0.0"))
+    assert results_dir(a) == results_dir(b) and str(a.mix) == "0.0"
+    assert str(a.grid.mixes[0]) == "0.0"
+
+
+def test_write_atomic_never_leaves_half_a_file(tmp_path):
+    """A writer killed in the middle leaves the previous file whole, and no temporary."""
+    from bgap.common.runs import write_atomic
+
+    target = tmp_path / "table.csv"
+    write_atomic(target, "old\n")
+
+    def dies(path: Path) -> None:
+        path.write_text("half of a new ")
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        write_atomic(target, dies)
+    assert target.read_text() == "old\n" and [p.name for p in tmp_path.iterdir()] == ["table.csv"]
+    code = (
+        "import os, sys; from pathlib import Path; from bgap.common.runs import write_atomic\n"
+        "def slow(p):\n    f = open(p, 'w'); f.write('x' * 1000); f.flush(); print('writing', "
+        "flush=True); import time; time.sleep(30)\n"
+        f"write_atomic(Path({str(target)!r}), slow)"
+    )
+    writer = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, env=ENV
+    )
+    assert writer.stdout.readline().strip() == "writing"
+    writer.kill()  # kill -9 in the middle of the write
+    writer.wait()
+    assert target.read_text() == "old\n"
+
+
+# ------------------------------------------------------------------ generated inputs
+COLUMNS = ("vehicle_id", "id", "frame", "time", "x", "y", "vx", "vy", "episode", "label", "odd")
+CELL = st.one_of(
+    st.integers(-3, 50),
+    st.floats(allow_nan=True, allow_infinity=True, width=32),
+    st.sampled_from(["", "a", "1e3", "nan", "-", "aggressive"]),
+    st.none(),
+)
+
+
+@st.composite
+def tables(draw) -> pd.DataFrame:
+    columns = draw(st.lists(st.sampled_from(COLUMNS), min_size=0, max_size=7, unique=True))
+    rows = draw(st.integers(0, 25))
+    return pd.DataFrame(
+        {c: draw(st.lists(CELL, min_size=rows, max_size=rows)) for c in columns}, dtype=object
+    )
+
+
+@settings(max_examples=250, derandomize=True, deadline=None,
+          suppress_health_check=[HealthCheck.too_slow])  # fmt: skip
+@given(tables(), st.sampled_from(["csv", "parquet", "frame"]))
+def test_any_generated_table_is_read_or_refused_with_a_trajectory_error(tmp_path_factory, df, kind):
+    """The one trajectory reader either returns a complete table or raises the one error
+    type the commands turn into one line (never another exception)."""
+    folder = tmp_path_factory.mktemp("gen")
+    if kind == "frame":
+        source = df
+    elif kind == "csv":
+        source = folder / "t.csv"
+        df.to_csv(source, index=False)
+    else:
+        source = folder / "t.parquet"
+        try:
+            df.astype(str).to_parquet(source, index=False)
+        except Exception:  # noqa: BLE001 - pandas cannot write it: nothing to read
+            return
+    try:
+        table = load_trajectories(source)
+    except TrajectoryError:
+        return
+    assert list(table.columns[:8]) == [
+        "episode",
+        "frame",
+        "time",
+        "vehicle_id",
+        "x",
+        "y",
+        "vx",
+        "vy",
+    ]
+    assert np.isfinite(table[["x", "y", "vx", "vy", "time"]].to_numpy(dtype=float)).all()
+
+
+GOOD = pd.DataFrame(
+    [(v, f, f * (1.0 + v % 3), 3.5 * (v % 3), "aggressive") for v in range(4) for f in range(8)],
+    columns=["vehicle_id", "frame", "x", "y", "label"],
+)
+
+
+@st.composite
+def damaged(draw) -> tuple[str, bytes]:
+    """A good table's file, damaged as files are: cut short, bytes overwritten or inserted
+    (another encoding, binary noise), a row with a field too many."""
+    kind = draw(st.sampled_from(["csv", "parquet"]))
+    data = GOOD.to_csv(index=False).encode() if kind == "csv" else GOOD.to_parquet(index=False)
+    how = draw(st.sampled_from(["cut", "overwrite", "insert", "ragged"]))
+    at = draw(st.integers(0, len(data) - 1))
+    noise = draw(st.binary(min_size=1, max_size=8))
+    if how == "cut":
+        data = data[:at]
+    elif how == "overwrite":
+        data = data[:at] + noise + data[at + len(noise) :]
+    elif how == "insert":
+        data = data[:at] + noise + data[at:]
+    elif kind == "csv":
+        lines = data.split(b"\n")
+        k = draw(st.integers(1, len(lines) - 2))
+        lines[k] += b",7"
+        data = b"\n".join(lines)
+    return kind, data
+
+
+@settings(max_examples=250, derandomize=True, deadline=None)
+@given(damaged())
+def test_any_damaged_file_is_read_or_refused_with_a_trajectory_error(tmp_path_factory, file):
+    kind, data = file
+    path = tmp_path_factory.mktemp("damaged") / f"t.{kind}"
+    path.write_bytes(data)
+    try:
+        table = load_trajectories(path)
+    except TrajectoryError:
+        return
+    assert np.isfinite(table[["x", "y", "vx", "vy", "time"]].to_numpy(dtype=float)).all()
+
+
+NUMBERS = st.one_of(
+    st.integers(-(2**40), 2**40),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.sampled_from([0, -0.0, 1e-12, 1e308]),
+)
+KEYS = ("mix", "radius", "seed", "episodes", "env.duration", "env.vehicles_density",
+        "env.vehicles_count", "env.lanes_count", "env.policy_frequency")  # fmt: skip
+
+
+@settings(max_examples=200, derandomize=True, deadline=None)
+@given(st.dictionaries(st.sampled_from(KEYS), NUMBERS, min_size=1, max_size=3))
+def test_any_generated_setting_is_accepted_or_refused_with_a_config_error(values):
+    """Every generated value of the simulate command's numeric settings either validates
+    (and is then finite and in range where it matters) or is one ConfigError naming a key."""
+    overrides = [f"{k}={v!r}" for k, v in values.items()]
+    try:
+        cfg = validate(compose("simulate", overrides))
+    except ConfigError as err:
+        assert any(k.split(".")[-1] in str(err) for k in values), str(err)
+        return
+    except Exception as err:  # noqa: BLE001 - Hydra's own type errors are known mistakes
+        from bgap.common.cli import known_errors
+
+        assert isinstance(err, known_errors()), repr(err)
+        return
+    assert 0.0 <= cfg.mix <= 1.0 and np.isfinite(cfg.env.duration) and cfg.env.duration > 0
+    assert 0 <= cfg.seed <= 2**32 - 1
