@@ -32,7 +32,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import greedy, rollout
 from bgap.common.plotting import pyplot
-from bgap.common.runs import BEST_MODEL
+from bgap.common.runs import BEST_MODEL, write_atomic
 from bgap.sim.rollout import EpisodeStats
 
 INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
@@ -176,7 +176,7 @@ class TrainingMonitor:
         if best is not None and best["return"] > record["return"]:
             return  # ties: the later evaluation, which has trained longer
         self.state["best"] = dict(record)
-        policy.save(self.run_dir / BEST_MODEL)
+        write_atomic(self.run_dir / BEST_MODEL, policy.save)  # whole or not at all
         (self.run_dir / "best.json").write_text(json.dumps(self.state["best"], indent=1))
         self.log("eval/best_episodes", record["episodes"])
 

@@ -28,7 +28,7 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.common.errors import ConfigError, Interrupted, check
-from bgap.common.runs import exclusive
+from bgap.common.runs import exclusive, write_atomic
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
@@ -300,7 +300,7 @@ class _Members:
 
     def finish(self, k: int) -> None:
         self.checkpoint(k)
-        self.save_model(k, self.dirs[k] / "model.zip")
+        write_atomic(self.dirs[k] / "model.zip", lambda tmp: self.save_model(k, tmp))
         self.writers[k].close()
         plot_learning_curves(self.dirs[k])
         self.active[k] = False

@@ -37,7 +37,7 @@ from bgap.agents.monitor import (
 )
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
-from bgap.common.runs import exclusive
+from bgap.common.runs import exclusive, write_atomic
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
@@ -164,7 +164,7 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
     finally:
         env.close()
     callback.checkpoint()
-    model.save(run_dir / "model.zip")
+    write_atomic(run_dir / "model.zip", model.save)  # written last, whole: "finished"
     plot_learning_curves(run_dir)
     return run_dir
 
