@@ -449,9 +449,12 @@ def test_the_kept_checkpoint_has_the_highest_validation_return(tmp_path):
     class Policy:
         def save(self, path):
             kept.append(current)
+            Path(path).write_text(f"model {current}")  # a model file, as SB3's save writes
 
     monitor = TrainingMonitor(tmp_path, 1, {"policy_frequency": 1}, "vector", None, 0, 1, 0)
     for current, value in enumerate([20.5, 31.0, 30.2, 31.0, 12.0]):
         monitor._keep_if_best(Policy(), {"episodes": 50 * (current + 1), "return": value})
     assert kept == [0, 1, 3]
     assert json.loads((tmp_path / "best.json").read_text())["episodes"] == 200
+    assert (tmp_path / "best_model.zip").read_text() == "model 3"  # and no temporary left
+    assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".zip") == ["best_model.zip"]

@@ -150,7 +150,8 @@ def write_atomic(path: Path, data: str | bytes | Callable[[Path], Any]) -> Path:
     (a kill leaves the previous file or none, never half of one). ``data``: text, bytes,
     or a function that writes the file at the path it is given."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    # the same suffix: writers such as SB3's save add theirs to a name without it
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
         if callable(data):
             data(tmp)
