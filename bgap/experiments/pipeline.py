@@ -144,6 +144,10 @@ radii: [180.0, 30.0]
 """The evaluation grid of a rehearsal: the tiny grid at both densities."""
 
 
+LAST = ("recipe", "calibrate")
+"""Stages rehearsed after all others: they rewrite presets other stages read."""
+
+
 def rehearsal(params: dict) -> None:
     """Shrink ``params`` (params.yaml) in place to a rehearsal of every stage that finishes in
     minutes: the tiny profile and grid, one seed per training, a few trials and episodes.
@@ -182,8 +186,15 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
             [*git, "add", "-A"],
             [*git, "commit", "-qm", "rehearsal"],
             [sys.executable, "-m", "dvc", "init", "-q"],
-            [sys.executable, "-m", "dvc", "repro", "--force", *stages],
         ):
+            done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
+            if done.returncode != 0:
+                raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
+        # one stage at a time, in dvc.yaml's order, on the committed presets: a stage that
+        # writes a preset (the recipe's unseeded sweep) runs last, so that no other stage
+        # reads a rehearsal's preset instead of the checkout's
+        for stage in sorted(stages, key=lambda s: s.split("@")[0] in LAST):
+            cmd = [sys.executable, "-m", "dvc", "repro", "--force", "--single-item", stage]
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
                 raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
@@ -237,9 +248,9 @@ def relock(
     Both the commit ``base`` and the working tree run the stages at the rehearsal budget
     (:func:`rehearsal`) in copies of their own; only when every file each stage writes is
     byte-identical in both is the stage's lock rewritten (DVC's ``commit`` with the outputs
-    allowed to be missing: the study's models are not on this machine). Returns, per stage,
-    the files that differ (empty: relocked). A stage whose outputs differ must be rerun
-    (``dvc repro STAGE``), not relocked.
+    allowed to be missing: the study's models are not on this machine); a stage whose files
+    differ keeps its lock. Returns, per stage, the files that differ (empty: relocked). A
+    stage whose outputs differ must be rerun (``dvc repro STAGE``), not relocked.
     """
 
     # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
@@ -272,9 +283,9 @@ def relock(
     ]
     if changed:  # the lock records the files as they are now, not as rehearsed
         raise RuntimeError(f"code changed during the rehearsal: {', '.join(changed[:5])}; rerun")
-    if not any(differs.values()):
-        with Repo(str(root)) as repo:
-            for stage in expanded:
+    with Repo(str(root)) as repo:
+        for stage in expanded:
+            if not differs[stage]:  # only the stages whose every output is identical
                 repo.commit(stage, force=True, allow_missing=True)
     return differs
 
@@ -299,10 +310,11 @@ def main(argv: list[str] | None = None) -> None:
         bad = {s: f for s, f in differs.items() if f}
         for stage, files in bad.items():
             print(f"{stage}: outputs differ from {args.base}'s: {', '.join(files[:5])}")
+        done = [s for s, f in differs.items() if not f]
+        print(f"relocked {len(done)} stage(s) in dvc.lock: {', '.join(done) or 'none'}")
         if bad:
-            print("refused: no lock was changed; rerun those stages (dvc repro STAGE) instead")
+            print(f"refused {len(bad)}: their locks are unchanged; rerun them (dvc repro STAGE)")
             sys.exit(1)
-        print(f"relocked {len(differs)} stage(s) in dvc.lock: {', '.join(differs)}")
         return
     if args.command == "deps":
         if args.write:
