@@ -19,7 +19,9 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import zipfile
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -144,6 +146,9 @@ radii: [180.0, 30.0]
 """The evaluation grid of a rehearsal: the tiny grid at both densities."""
 
 
+REHEARSED = ".rehearsed"
+"""Marks a finished rehearsal in its folder: ``--work`` of an earlier run reuses it."""
+
 LAST = ("recipe", "calibrate")
 """Stages rehearsed after all others: they rewrite presets other stages read."""
 
@@ -236,12 +241,66 @@ def _checkout(rev: str | None, into: Path, root: Path = ROOT) -> None:
             shutil.copy2(root / name, into / name)
 
 
+TB_EVENTS = "events.out.tfevents"
+"""TensorBoard's event files: named by wall time, host and process, and holding wall times."""
+
+
+def _same(a: Path, b: Path) -> bool:
+    """Whether two output files hold the same result. Byte for byte, but for zip archives
+    (Stable-Baselines3's models), whose members are compared rather than the archives: each
+    entry carries the time it was written, and the human-readable part of SB3's ``data``
+    prints object addresses (``<function ... at 0x7f...>``) beside the serialised values."""
+    if a.suffix != ".zip":
+        return filecmp.cmp(a, b, shallow=False)
+    with zipfile.ZipFile(a) as za, zipfile.ZipFile(b) as zb:
+        if za.namelist() != zb.namelist():
+            return False
+        return all(
+            _unaddressed(za.read(n)) == _unaddressed(zb.read(n)) if n == "data"
+            else za.read(n) == zb.read(n)
+            for n in za.namelist()
+        )  # fmt: skip
+
+
+def _unaddressed(data: bytes) -> bytes:
+    return re.sub(rb" at 0x[0-9a-f]+", b" at 0x", data)
+
+
+def _scalars(folder: Path) -> list[tuple[str, int, float]]:
+    """Every scalar (tag, step, value) TensorBoard logged in ``folder``, wall times aside."""
+    # Imported here: TensorBoard's reader loads only when a rehearsal is compared.
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    found = []
+    for events in sorted(folder.glob(f"{TB_EVENTS}*")):
+        acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
+        acc.Reload()
+        found += [(tag, e.step, e.value) for tag in acc.Tags()["scalars"] for e in acc.Scalars(tag)]
+    return sorted(found)
+
+
 def _code_files(root: Path) -> list[str]:
-    return [str(p.relative_to(root)) for p in sorted((root / "bgap").rglob("*.py"))]
+    """Every code file some stage runs."""
+    return sorted({f for needed, _ in code_deps(root / "dvc.yaml").values() for f in needed})
+
+
+def _record_lock(repo: Any, stage: str) -> None:
+    """``dvc commit --force`` of ``stage`` with its outputs, and the outputs of other stages
+    it depends on, allowed to be missing (their lock entries are kept as they are). DVC's
+    own commit also saves the run cache, which needs every dependency present."""
+    with repo.lock:
+        for found in repo.stage.collect(stage):
+            found.save(allow_missing=True, run_cache=False)
+            found.commit(allow_missing=True)
+            found.dvcfile.dump(found, update_pipeline=False)
 
 
 def relock(
-    stages: list[str], base: str = "HEAD", work: Path | None = None, root: Path = ROOT
+    stages: list[str],
+    base: str = "HEAD",
+    work: Path | None = None,
+    root: Path = ROOT,
+    unreproducible: bool = False,
 ) -> dict[str, list]:
     """Record the new lock of ``stages`` whose code moved without changing what it computes.
 
@@ -251,6 +310,11 @@ def relock(
     allowed to be missing: the study's models are not on this machine); a stage whose files
     differ keeps its lock. Returns, per stage, the files that differ (empty: relocked). A
     stage whose outputs differ must be rerun (``dvc repro STAGE``), not relocked.
+
+    ``unreproducible``: for stages that do not reproduce themselves (the recipe's sweep
+    draws its trials unseeded, so that parallel workers never repeat one), the commit
+    ``base`` is rehearsed twice; files that already differ between those two runs are not
+    compared, every other file must still be identical.
     """
 
     # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
@@ -258,25 +322,37 @@ def relock(
 
     work = Path(tempfile.mkdtemp(prefix="bgap-relock-")) if work is None else work
     trees = {"base": work / "base", "head": work / "head"}
-    _checkout(base, trees["base"], root)
-    _checkout(None, trees["head"], root)
+    if unreproducible:
+        trees["again"] = work / "again"
     for name, tree in trees.items():
+        if (tree / REHEARSED).exists():  # a finished rehearsal of these stages, kept
+            continue
+        _checkout(None if name == "head" else base, tree, root)
         print(
-            f"rehearsing {', '.join(stages)} from {base if name == 'base' else 'the working tree'}"
+            f"rehearsing {', '.join(stages)} from {'the working tree' if name == 'head' else base}"
             f" in {tree} (log: {work / name}.log)",
             flush=True,
         )
         _rehearse(tree, stages, work / f"{name}.log")
+        (tree / REHEARSED).write_text("\n".join(stages) + "\n")
     differs: dict[str, list] = {}
     with Repo(str(trees["head"])) as repo:
         expanded = [s.addressing for name in stages for s in repo.stage.collect(name)]
     for stage in expanded:
         files = sorted(set(_outputs(trees["base"], stage)) | set(_outputs(trees["head"], stage)))
+        events = {f.parent for f in files if f.name.startswith(TB_EVENTS)}
+        files = [f for f in files if not f.name.startswith(TB_EVENTS)]
+        if unreproducible:  # what differs between two runs of the same code says nothing
+            files = [f for f in files if _same(trees["base"] / f, trees["again"] / f)]
         differs[stage] = [
             str(f)
             for f in files
             if not all((t / f).is_file() for t in trees.values())
-            or not filecmp.cmp(trees["base"] / f, trees["head"] / f, shallow=False)
+            or not _same(trees["base"] / f, trees["head"] / f)
+        ] + [
+            str(d / TB_EVENTS)
+            for d in sorted(events)
+            if _scalars(trees["base"] / d) != _scalars(trees["head"] / d)
         ]
     changed = [
         f for f in _code_files(root) if not filecmp.cmp(root / f, trees["head"] / f, shallow=False)
@@ -286,7 +362,7 @@ def relock(
     with Repo(str(root)) as repo:
         for stage in expanded:
             if not differs[stage]:  # only the stages whose every output is identical
-                repo.commit(stage, force=True, allow_missing=True)
+                _record_lock(repo, stage)
     return differs
 
 
@@ -304,9 +380,14 @@ def main(argv: list[str] | None = None) -> None:
     lock.add_argument(
         "--work", type=Path, help="folder for the two rehearsals (default: a new temp folder)"
     )
+    lock.add_argument(
+        "--unreproducible",
+        action="store_true",
+        help="rehearse the base twice and compare only what reproduces (the recipe's sweep)",
+    )
     args = parser.parse_args(argv)
     if args.command == "relock":
-        differs = relock(args.stages, args.base, args.work)
+        differs = relock(args.stages, args.base, args.work, unreproducible=args.unreproducible)
         bad = {s: f for s, f in differs.items() if f}
         for stage, files in bad.items():
             print(f"{stage}: outputs differ from {args.base}'s: {', '.join(files[:5])}")
