@@ -8,6 +8,7 @@ import hashlib
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -288,3 +289,47 @@ def test_any_generated_setting_is_accepted_or_refused_with_a_config_error(values
         return
     assert 0.0 <= cfg.mix <= 1.0 and np.isfinite(cfg.env.duration) and cfg.env.duration > 0
     assert 0 <= cfg.seed <= 2**32 - 1
+
+
+# ------------------------------------------------------------------ kill -9 and resume
+def _train(run_dir: Path, learner: str, resume: bool = False) -> subprocess.Popen:
+    args = ["profile=tiny", "env=sparse", f"learner={learner}", f"run_dir={run_dir}"]
+    return subprocess.Popen(
+        [sys.executable, "-m", "bgap.train", *args, *(["resume=true"] if resume else [])],
+        cwd=run_dir.parent, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+
+
+def _weights(run_dir: Path) -> bytes:
+    import zipfile
+
+    with zipfile.ZipFile(run_dir / "model.zip") as archive:
+        return archive.read("policy.pth")
+
+
+@pytest.mark.parametrize(
+    "learner,kills",
+    [("sb3", 2), ("batched", 2), *(pytest.param(learner, 20, marks=pytest.mark.slow)
+                                   for learner in ("sb3", "batched"))],
+)  # fmt: skip
+def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters(
+    tmp_path, learner, kills
+):
+    """A training killed with SIGKILL at a random moment (checkpoint writes included), then
+    continued with resume=true, ends with the weights of a training never interrupted."""
+    whole = tmp_path / "whole"
+    start = time.perf_counter()
+    assert _train(whole, learner).wait(timeout=600) == 0
+    took = time.perf_counter() - start
+    rng = np.random.default_rng(34)
+    for k in range(kills):
+        run = tmp_path / f"cut{k}"
+        first = _train(run, learner)
+        try:
+            first.wait(timeout=float(rng.uniform(0.3, took)))
+        except subprocess.TimeoutExpired:
+            first.kill()  # SIGKILL: no handler runs
+            first.wait()
+        resumed = _train(run, learner, resume=(run / "config.yaml").exists())
+        assert resumed.wait(timeout=600) == 0, f"repetition {k}: the resume failed"
+        assert _weights(run) == _weights(whole), f"repetition {k}: other weights"
