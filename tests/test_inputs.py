@@ -333,3 +333,16 @@ def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters
         resumed = _train(run, learner, resume=(run / "config.yaml").exists())
         assert resumed.wait(timeout=600) == 0, f"repetition {k}: the resume failed"
         assert _weights(run) == _weights(whole), f"repetition {k}: other weights"
+
+
+def test_a_log_whose_vehicles_keep_their_own_clocks_is_refused_and_a_common_clock_read():
+    """Four vehicles sampled every 0.04 s, each 13 ms after the previous: frames made from
+    their times would each hold one vehicle (no traffic graph). The same log on a common
+    clock reads with every vehicle in every frame."""
+    rows = [(v, k * 0.04 + 0.013 * v, float(k), 3.5 * (v % 2)) for v in range(4) for k in range(30)]
+    own = pd.DataFrame(rows, columns=["vehicle_id", "time", "x", "y"])
+    with pytest.raises(TrajectoryError, match="keep their own clocks: sampled every 0.04 s"):
+        load_trajectories(own)
+    common = own.assign(time=[k * 0.04 for v in range(4) for k in range(30)])
+    table = load_trajectories(common)
+    assert table.groupby("frame").vehicle_id.nunique().min() == 4

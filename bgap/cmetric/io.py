@@ -118,6 +118,7 @@ def load_trajectories(
             )
         df[col] = values
     if "frame" not in df.columns:
+        _refuse_own_clocks(df)
         times = np.unique(df["time"].to_numpy())
         df["frame"] = np.searchsorted(times, df["time"].to_numpy())
     if "time" not in df.columns:
@@ -152,6 +153,26 @@ def load_trajectories(
     keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
     keep += [c for c in ("label", *extra) if c in df.columns]
     return df[keep]
+
+
+def _refuse_own_clocks(df: pd.DataFrame) -> None:
+    """Refuse a log whose vehicles keep their own clocks (sampled at one rate, each with its
+    own offset): frames made from its times would each hold one vehicle, and no traffic
+    graph would ever join two. Resampling would invent positions; the fix is the user's."""
+    step = df.groupby(["episode", "vehicle_id"])["time"].diff().median()
+    if not np.isfinite(step) or step <= 0:
+        return
+    phase = np.mod(df["time"].to_numpy(), step) / step
+    phase = np.minimum(phase, 1.0 - phase)  # 0.0 and 0.999 are the same clock
+    per_vehicle = pd.Series(phase).groupby([df["episode"].to_numpy(), df["vehicle_id"].to_numpy()])
+    offsets = per_vehicle.median()
+    if offsets.max() - offsets.min() > 0.05:  # more than 5% of a step apart
+        raise TrajectoryError(
+            f"the vehicles keep their own clocks: sampled every {step:g} s, at offsets up to "
+            f"{(offsets.max() - offsets.min()) * step:.3g} s apart, so no two share a time; "
+            "resample every vehicle to common times (e.g. interpolate at t = k * step) or "
+            "give a frame column"
+        )
 
 
 def check_scoreable(df: pd.DataFrame) -> None:
