@@ -346,3 +346,10 @@ def test_a_log_whose_vehicles_keep_their_own_clocks_is_refused_and_a_common_cloc
     common = own.assign(time=[k * 0.04 for v in range(4) for k in range(30)])
     table = load_trajectories(common)
     assert table.groupby("frame").vehicle_id.nunique().min() == 4
+    # offsets 0.3 and 0.7 of a step are 0.4 apart on the clock's circle (not mirror images)
+    two = [(v, k * 0.04 + o, float(k), 0.0) for v, o in ((0, 0.012), (1, 0.028)) for k in range(30)]
+    with pytest.raises(TrajectoryError, match="offsets up to 0.016 s apart"):
+        load_trajectories(pd.DataFrame(two, columns=["vehicle_id", "time", "x", "y"]))
+    # one step less a hair: the same clock (0.0 and 0.039 s of a 0.04 s step)
+    near = [(v, k * 0.04 + o, float(k), 0.0) for v, o in ((0, 0.0), (1, 0.039)) for k in range(30)]
+    assert load_trajectories(pd.DataFrame(near, columns=["vehicle_id", "time", "x", "y"])).size

@@ -162,14 +162,20 @@ def _refuse_own_clocks(df: pd.DataFrame) -> None:
     step = df.groupby(["episode", "vehicle_id"])["time"].diff().median()
     if not np.isfinite(step) or step <= 0:
         return
-    phase = np.mod(df["time"].to_numpy(), step) / step
-    phase = np.minimum(phase, 1.0 - phase)  # 0.0 and 0.999 are the same clock
-    per_vehicle = pd.Series(phase).groupby([df["episode"].to_numpy(), df["vehicle_id"].to_numpy()])
-    offsets = per_vehicle.median()
-    if offsets.max() - offsets.min() > 0.05:  # more than 5% of a step apart
+    # each vehicle's offset within a step, as a circular mean (times k * step in floating
+    # point fall just under or over a step: phases near 1 and near 0 are one clock)
+    turn = np.exp(2j * np.pi * df["time"].to_numpy() / step)
+    keys = [df["episode"].to_numpy(), df["vehicle_id"].to_numpy()]
+    mean = pd.Series(turn).groupby(keys).mean().to_numpy()
+    offsets = np.sort(np.mod(np.angle(mean) / (2 * np.pi), 1.0))
+    # on the circle of one step (0.0 and 0.99 are the same clock): the arc that holds every
+    # vehicle's offset is one step less the widest gap between neighbouring offsets
+    gaps = np.diff(np.append(offsets, offsets[0] + 1.0))
+    spread = 1.0 - gaps.max()
+    if spread > 0.05:  # more than 5% of a step apart
         raise TrajectoryError(
             f"the vehicles keep their own clocks: sampled every {step:g} s, at offsets up to "
-            f"{(offsets.max() - offsets.min()) * step:.3g} s apart, so no two share a time; "
+            f"{spread * step:.3g} s apart, so no two share a time; "
             "resample every vehicle to common times (e.g. interpolate at t = k * step) or "
             "give a frame column"
         )
