@@ -19,6 +19,7 @@ import numpy as np
 
 from bgap.agents.rule_based import rule_based
 from bgap.common.errors import ConfigError
+from bgap.common.runs import read_or_refuse
 from bgap.common.vocab import BASELINES, IDLE, LANE_LEFT, N_ACTIONS
 from bgap.sim import rollout as sim_rollout
 from bgap.sim.rollout import Policy, Rollout, as_callable, greedy
@@ -76,26 +77,26 @@ def load_model(spec: str | Path) -> Any:
 
     classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3}
     algo, _, rest = str(spec).partition(":")
-    path = model_path(rest if rest and algo.lower() in classes else spec)
-    try:
-        if rest and algo.lower() in classes:
-            algo = algo.lower()
-        else:
-            with zipfile.ZipFile(path) as archive:
-                data = json.loads(archive.read("data"))
-            found = [name for name, key in _ALGORITHM_KEYS if key in data]
-            if not found:
-                raise ConfigError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
-            algo = found[0]
-        return classes[algo].load(path, device="cpu")
-    except (zipfile.BadZipFile, KeyError, ValueError, EOFError, OSError, RuntimeError) as err:
-        if isinstance(err, ConfigError):
-            raise
-        raise ConfigError(
-            f"{path} is not a readable model ({type(err).__name__}: "
-            f"{str(err).splitlines()[0][:120] if str(err) else 'truncated'}); give a model.zip "
-            "saved by bgap.train or Stable-Baselines3"
-        ) from None
+    named = bool(rest) and algo.lower() in classes
+    path = model_path(rest if named else spec)
+
+    def load() -> Any:
+        name = algo.lower() if named else _algorithm_of(path)
+        return classes[name].load(path, device="cpu")
+
+    return read_or_refuse(
+        load, f"{path} is not a readable model", "give a model.zip saved by bgap.train or SB3"
+    )
+
+
+def _algorithm_of(path: Path) -> str:
+    """The algorithm of a saved model, from the attributes SB3 saved in its ``data``."""
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data"))
+    found = [name for name, key in _ALGORITHM_KEYS if key in data]
+    if not found:
+        raise ConfigError(f"{path}: cannot tell its algorithm; write it as <algo>:{path}")
+    return found[0]
 
 
 def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:

@@ -27,7 +27,7 @@ from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.runs import differing_keys, save_run_metadata
+from bgap.common.runs import other_settings, save_run_metadata
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -118,14 +118,10 @@ def _refuse_other_scores(out: Path, dcfg: DictConfig) -> None:
         raise ConfigError(
             f"out={out} exists and was not written by bgap.cmetric; choose a new file"
         )
-    keys = differing_keys(
-        OmegaConf.to_container(OmegaConf.load(stored), resolve=True),
-        OmegaConf.to_container(dcfg, resolve=True),
-        ignore=("out",),
-    )
-    if keys:
+    differs = other_settings(stored, OmegaConf.to_container(dcfg, resolve=True), ("out",))
+    if differs:
         raise ConfigError(
-            f"out={out} holds scores of other settings ({', '.join(keys[:4])}); choose another file"
+            f"out={out} holds scores of other settings ({differs}); choose another file"
         )
 
 

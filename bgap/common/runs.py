@@ -13,16 +13,20 @@ import fcntl
 import hashlib
 import json
 import os
+import pickle
 import shlex
 import sys
+import zipfile
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from omegaconf import OmegaConf
 
 from bgap.common.errors import ConfigError
+
+T = TypeVar("T")
 
 LOCK = ".lock"
 """The advisory lock file of a folder a command is writing (:func:`exclusive`)."""
@@ -90,6 +94,38 @@ def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATI
     return sorted(k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore)
 
 
+DAMAGED = (
+    pickle.UnpicklingError, EOFError, zipfile.BadZipFile, KeyError, ValueError, OSError,
+    RuntimeError,
+)  # fmt: skip
+"""What reading a truncated or corrupt model or checkpoint raises (pickle, zip, torch)."""
+
+
+def read_or_refuse(read: Callable[[], T], what: str, fix: str) -> T:
+    """``read()`` of a model or checkpoint file; a damaged one is a :class:`ConfigError`
+    naming ``what`` is damaged and the ``fix``, one line instead of a traceback."""
+    try:
+        return read()
+    except DAMAGED as err:
+        if isinstance(err, ConfigError):  # a known mistake of the reader's own
+            raise
+        reason = str(err).splitlines()[0][:120] if str(err) else "truncated"
+        raise ConfigError(f"{what} ({type(err).__name__}: {reason}); {fix}") from None
+
+
+def other_settings(stored_path: Path, current: dict, ignore: tuple[str, ...]) -> str | None:
+    """How the settings saved at ``stored_path`` differ from ``current`` (the first keys,
+    with both values), or None when they do not."""
+    stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
+    keys = differing_keys(stored, current, ignore)
+    if not keys:
+        return None
+    shown = ", ".join(
+        f"{k} ({_flat(stored).get(k)!r} there, {_flat(current).get(k)!r} now)" for k in keys[:4]
+    )
+    return shown + (f" and {len(keys) - 4} more" if len(keys) > 4 else "")
+
+
 def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = VOLATILE) -> Path:
     """Write ``config.yaml`` (resolved) and ``command.txt`` into ``out_dir``.
 
@@ -102,16 +138,10 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
     stored_path = out / "config.yaml"
     refuse_foreign(out)
     if stored_path.exists() and not only_metadata(out):
-        stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
-        keys = differing_keys(stored, current, ignore)
-        if keys:
-            shown = ", ".join(
-                f"{k} ({_flat(stored).get(k)!r} there, {_flat(current).get(k)!r} now)"
-                for k in keys[:4]
-            )
-            more = f" and {len(keys) - 4} more" if len(keys) > 4 else ""
+        differs = other_settings(stored_path, current, ignore)
+        if differs:
             raise ConfigError(
-                f"{out} holds a result of other settings: {shown}{more}; choose another "
+                f"{out} holds a result of other settings: {differs}; choose another "
                 "output folder (or delete that one)"
             )
     out.mkdir(parents=True, exist_ok=True)

@@ -3,8 +3,6 @@ identity (what changes what is learnt) and run folder, and the SB3 model it is s
 
 from __future__ import annotations
 
-import pickle
-import zipfile
 from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -18,7 +16,7 @@ from bgap.agents.monitor import (
 )
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.common.errors import ConfigError
-from bgap.common.runs import VOLATILE, digest, save_run_metadata
+from bgap.common.runs import VOLATILE, digest, read_or_refuse, save_run_metadata
 from bgap.experiments.config import ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
@@ -143,18 +141,11 @@ def member_configs(cfg: ExperimentConfig) -> list[ExperimentConfig]:
     ]
 
 
-DAMAGED = (pickle.UnpicklingError, EOFError, zipfile.BadZipFile, KeyError, ValueError, OSError)
-"""What reading a truncated or corrupt checkpoint file raises (pickle, zip, torch)."""
-
-
 def read_checkpoint(ckpt: Path, read: Callable[[], T]) -> T:
     """``read()`` of files in the checkpoint folder ``ckpt``; a damaged file is one line
     saying so and how to go on, not a traceback."""
-    try:
-        return read()
-    except DAMAGED + (RuntimeError,) as err:
-        raise ConfigError(
-            f"{ckpt} holds a damaged checkpoint ({type(err).__name__}: "
-            f"{str(err).splitlines()[0][:120] if str(err) else 'unreadable'}); restore it, or "
-            "delete that folder and train again without resume=true"
-        ) from None
+    return read_or_refuse(
+        read,
+        f"{ckpt} holds a damaged checkpoint",
+        "restore it, or delete that folder and train again without resume=true",
+    )
