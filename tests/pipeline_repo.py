@@ -42,6 +42,8 @@ def make_repo(repo: Path, stages: set[str], edit: Callable[[dict], None]) -> Pat
     missing = stages - set(pipeline["stages"])
     assert not missing, f"no such stages in dvc.yaml: {sorted(missing)}"
     pipeline["stages"] = {k: v for k, v in pipeline["stages"].items() if k in stages}
+    for stage in pipeline["stages"].values():
+        stage.pop("frozen", None)  # the copy makes every preset afresh, the recipe's too
     (repo / "dvc.yaml").write_text(yaml.safe_dump(pipeline, sort_keys=False))
     for name in MADE_BY_A_STAGE:
         (repo / f"bgap/conf/{name}.yaml").unlink(missing_ok=True)

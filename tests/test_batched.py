@@ -149,6 +149,8 @@ def test_prioritized_sampling_follows_the_priorities_and_sb3_buffers_weights():
                    *(np.zeros((2, 2)),) * 3)  # fmt: skip
     priorities = rng.uniform(0.1, 3.0, (2, 7, 2))
     replay.priorities[:, :7] = priorities
+    for k in range(2):
+        replay.trees.rebuild(k, replay.priorities[k].reshape(-1))
     rngs = [np.random.default_rng(s) for s in (1, 2)]
     counts = np.zeros((2, 14))
     for _ in range(400):
@@ -164,6 +166,49 @@ def test_prioritized_sampling_follows_the_priorities_and_sb3_buffers_weights():
     probs = reference.probabilities()
     want = (14 * probs[flat[1]]) ** -0.7 / (14 * probs.min()) ** -0.7
     np.testing.assert_allclose(weights[1], want, rtol=1e-12)
+
+
+def test_sum_trees_invert_the_cumulative_sum_after_many_updates():
+    """After thousands of scattered writes (duplicates included) each member's tree holds the
+    exact sums and minima of its leaves, and inverts the cumulative distribution where
+    ``np.searchsorted`` on ``np.cumsum`` does (the sampler it replaces), draws a leaf with
+    probability p_j / sum p (chi-square), and never an empty leaf."""
+    from scipy import stats
+
+    from bgap.agents.per import SumTrees
+
+    rng = np.random.default_rng(3)
+    k, n, filled = 3, 1000, 700  # 1,000 leaves: capacity 1,024, 300 leaves never written
+    trees, leaves = SumTrees(k, n), np.zeros((k, n))
+    for _ in range(200):
+        idx = rng.integers(0, filled, (k, 64))
+        values = rng.gamma(0.5, 1.0, (k, 64)) + 1e-6
+        for m in range(k):
+            leaves[m, idx[m]] = values[m]  # last write wins, as numpy's fancy assignment
+        trees.set(np.arange(k), idx, leaves[np.arange(k)[:, None], idx])
+    np.testing.assert_allclose(trees.total(np.arange(k)), leaves.sum(axis=1), rtol=1e-12)
+    positive = np.where(leaves > 0, leaves, np.inf)
+    np.testing.assert_array_equal(trees.smallest(np.arange(k)), positive.min(axis=1))
+    u = rng.random((k, 100_000))
+    found = trees.find(np.arange(k), u)
+    cdf = np.cumsum(leaves, axis=1)
+    want = np.stack(
+        [np.searchsorted(c, x * c[-1], side="right") for c, x in zip(cdf, u, strict=True)]
+    )
+    assert np.mean(found == want) > 0.9999  # rounding of the two sums at a boundary
+    assert (leaves[np.arange(k)[:, None], found] > 0).all()
+    for m in range(k):
+        counts = np.bincount(found[m], minlength=n)[:filled]
+        p = leaves[m, :filled] / leaves[m].sum()
+        keep = p * u.shape[1] >= 5  # the chi-square test's expected counts
+        observed = np.append(counts[keep], counts[~keep].sum())
+        expected = np.append(p[keep], p[~keep].sum()) * u.shape[1]
+        assert stats.chisquare(observed, expected).pvalue > 1e-3
+    rebuilt = SumTrees(k, n)
+    for m in range(k):
+        rebuilt.rebuild(m, leaves[m])
+    np.testing.assert_allclose(rebuilt.sum, trees.sum, rtol=1e-12)
+    np.testing.assert_array_equal(rebuilt.min, trees.min)
 
 
 def _overrides(tmp: Path, name: str) -> list[str]:

@@ -47,6 +47,7 @@ import torch.nn.functional as F
 from torch.optim.adam import adam
 
 from bgap.agents.config import AgentConfig
+from bgap.agents.per import SumTrees
 from bgap.common.errors import check
 
 
@@ -157,6 +158,7 @@ class StackedReplay:
         self.pos = np.zeros(k, dtype=np.int64)
         self.full = np.zeros(k, dtype=bool)
         self.alpha, self.beta0, self.eps, self.prioritized = alpha, beta0, eps, prioritized
+        self.trees = SumTrees(k, self.size * n_envs)  # the priorities, for O(log N) sampling
 
     ARRAYS = ("obs", "next_obs", "actions", "rewards", "dones", "timeouts", "priorities",
               "max_priority", "pos", "full")  # fmt: skip
@@ -165,6 +167,9 @@ class StackedReplay:
         """One vector step of each of ``members`` (arrays (len(members), E, ...))."""
         pos = self.pos[members]
         self.priorities[members, pos] = (self.max_priority[members] ** self.alpha)[:, None]
+        leaves = pos[:, None] * self.n_envs + np.arange(self.n_envs)
+        self.trees.set(members, leaves, self.priorities[members[:, None], pos[:, None],
+                                                        np.arange(self.n_envs)])  # fmt: skip
         new = {"obs": obs, "next_obs": next_obs, "actions": actions, "rewards": rewards,
                "dones": dones, "timeouts": timeouts}  # fmt: skip
         for name, value in new.items():
@@ -179,7 +184,8 @@ class StackedReplay:
         betas: np.ndarray,
         rngs: list[np.random.Generator] | None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Flat indices (len(members), batch) drawn with P(i) = p_i / sum p, and the
+        """Flat indices (len(members), batch) drawn with P(i) = p_i / sum p (each member's sum
+        tree inverts its cumulative distribution at uniform draws from its own stream), and the
         importance weights (N P(i))^-beta / max_j (N P(j))^-beta (uniform sampling and
         weights 1 without prioritisation). ``rngs=None``: one member, drawn from numpy's
         global stream exactly as :class:`bgap.agents.per.PrioritizedReplayBuffer` (or SB3's
@@ -201,17 +207,10 @@ class StackedReplay:
         u = np.stack([rngs[k].random(batch) for k in members])  # each member's own stream
         if not self.prioritized:
             return (u * filled[:, None]).astype(np.int64), np.ones((len(members), batch))
-        p = self.priorities[members].reshape(len(members), -1)
-        valid = np.arange(p.shape[1]) < filled[:, None]
-        p = np.where(valid, p, 0.0)
-        cdf = np.cumsum(p, axis=1)
-        total = cdf[:, -1:]
-        flat = np.stack(
-            [np.searchsorted(c, x, side="right") for c, x in zip(cdf, u * total, strict=True)]
-        )
-        flat = np.minimum(flat, filled[:, None] - 1)
-        probs = np.take_along_axis(p, flat, axis=1) / total
-        p_min = np.where(valid, p, np.inf).min(axis=1, keepdims=True) / total
+        flat = self.trees.find(members, u)
+        total = self.trees.total(members)[:, None]
+        probs = self.trees.sum[members[:, None], flat + self.trees.capacity] / total
+        p_min = self.trees.smallest(members)[:, None] / total
         n = filled[:, None]
         weights = (n * probs) ** (-betas[:, None]) / (n * p_min) ** (-betas[:, None])
         return flat, weights
@@ -233,6 +232,7 @@ class StackedReplay:
         p = np.abs(td.astype(np.float64)) + self.eps
         pos, env = np.divmod(flat, self.n_envs)
         self.priorities[members[:, None], pos, env] = p**self.alpha
+        self.trees.set(members, flat, self.priorities[members[:, None], pos, env])
         self.max_priority[members] = np.maximum(self.max_priority[members], p.max(axis=1))
 
     def member_state(self, k: int) -> dict[str, Any]:
@@ -247,6 +247,7 @@ class StackedReplay:
                     f"{np.shape(target[k])}"
                 )
             target[k] = state[name]
+        self.trees.rebuild(k, self.priorities[k].reshape(-1))
 
 
 class BatchedDQN:

@@ -389,6 +389,49 @@ def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: i
         print(f"{name:<16}{updates:>11.0f}{steps:>15.0f}{study / updates / 3600:>14.1f}h")
     if 10 in rates:
         print(f"speedup K=10: {rates[10] / sb3_updates:.2f}x")
+    _print_replay_rates(max(ks), seconds)
+
+
+def _cumsum_sample(priorities: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The sampler the sum trees replaced (the baseline): each member's cumulative sum,
+    inverted with ``searchsorted``; O(K N) per gradient step."""
+    cdf = np.cumsum(priorities, axis=1)
+    return np.stack(
+        [np.searchsorted(c, x * c[-1], side="right") for c, x in zip(cdf, u, strict=True)]
+    )
+
+
+def _print_replay_rates(k: int, seconds: float, n: int = 15_000, batch: int = 32) -> None:
+    """Prioritized sampling and priority updates per gradient step of K full buffers of the
+    paper's size: the cumulative-sum sampler against the stacked sum trees."""
+    from bgap.agents.per import SumTrees
+
+    rng = np.random.default_rng(0)
+    priorities = rng.gamma(0.5, 1.0, (k, n)) + 1e-6
+    trees, members = SumTrees(k, n), np.arange(k)
+    for m in members:
+        trees.rebuild(m, priorities[m])
+
+    def cumsum_step() -> None:
+        flat = _cumsum_sample(priorities, rng.random((k, batch)))
+        priorities[members[:, None], flat] = rng.gamma(0.5, 1.0, (k, batch)) + 1e-6
+
+    def tree_step() -> None:
+        flat = trees.find(members, rng.random((k, batch)))
+        trees.set(members, flat, rng.gamma(0.5, 1.0, (k, batch)) + 1e-6)
+
+    rates = {}
+    for name, step in (("cumulative sum", cumsum_step), ("sum trees", tree_step)):
+        step()  # compiled (numba) before the clock starts
+        count, start = 0, time.perf_counter()
+        while time.perf_counter() - start < seconds / 2:
+            step()
+            count += 1
+        rates[name] = count / (time.perf_counter() - start)
+    print(f"PER sample + update, K={k} buffers of {n:,}, batch {batch} (gradient steps/s):")
+    for name, rate in rates.items():
+        print(f"  {name:<16}{rate:>9.0f}  {1e3 / rate:.2f} ms each")
+    print(f"  sum trees: {rates['sum trees'] / rates['cumulative sum']:.1f}x")
 
 
 def main(argv: list[str] | None = None) -> None:
