@@ -118,3 +118,19 @@ def test_the_ablation_compares_one_training_mix_with_the_mixture():
     assert table.loc["all test mixes", "lo"] > 0
     assert table.loc["100%", "difference"] == pytest.approx(-5, abs=2)
     assert table.loc["100%", "hi"] < 0
+
+
+def test_policy_names_give_the_arm_only_in_the_pipelines_layout():
+    """<arm>/<density>/<density>-<family>-s<seed> below any folder names the arm; a run
+    folder without the arm's and density's folders above it (bgap.run's) is arm main."""
+    names = {
+        "runs/main/sparse/sparse-behavior_rich-s3": ("main", "behavior_rich", 3),
+        "authors/dense/dense-default-s0": ("authors", "default", 0),
+        "sparse-default-s1": ("main", "default", 1),
+        "runs/sparse-default-s2": ("main", "default", 2),
+        "mix50/sparse/dense-behavior_rich-s1": ("main", "behavior_rich", 1),  # not the layout
+        "rule": ("", "rule", -1),
+    }
+    df = parse_policies(pd.DataFrame({"policy": list(names), "crashed": False}))
+    got = dict(zip(df.policy, zip(df.arm, df.family, df.train_seed, strict=True), strict=True))
+    assert got == names

@@ -146,3 +146,25 @@ def test_relock_refuses_a_stage_whose_rehearsal_outputs_changed(tmp_path):
         return yaml.safe_load(text)["stages"]["parity"]["outs"]
 
     assert outs(lock) == outs(relocked)
+
+
+def test_relock_compares_a_runs_settings_by_what_the_base_had(tmp_path):
+    """A run's config.yaml may gain a setting (new code, its default); a setting of the base
+    that is gone or holds another value makes the outputs differ. Other files: bytes."""
+    from bgap.experiments.pipeline import _same
+
+    def write(name: str, text: str) -> Path:
+        (tmp_path / name).mkdir(exist_ok=True)
+        (tmp_path / name / "config.yaml").write_text(text)
+        return tmp_path / name / "config.yaml"
+
+    base = write("base", "seed: 0\nagent:\n  gamma: 0.9\n  net_arch: [256, 256]\n")
+    added = write("added", "seed: 0\nalgo: dqn\nagent:\n  gamma: 0.9\n  net_arch: [256, 256]\n")
+    other = write("other", "seed: 0\nagent:\n  gamma: 0.8\n  net_arch: [256, 256]\n")
+    gone = write("gone", "seed: 0\nagent:\n  net_arch: [256, 256]\n")
+    shorter = write("shorter", "seed: 0\nagent:\n  gamma: 0.9\n  net_arch: [256]\n")
+    assert _same(base, added)
+    assert not _same(base, other) and not _same(base, gone) and not _same(base, shorter)
+    (tmp_path / "a.csv").write_text("x\n1\n")
+    (tmp_path / "b.csv").write_text("x\n1\nseed: 0\n")
+    assert not _same(tmp_path / "a.csv", tmp_path / "b.csv")

@@ -13,7 +13,7 @@ import yaml
 
 from tests.pipeline_repo import run
 
-STAGES = {"calibrate", "recipe", "train", "evaluate", "evaluate_stock", "figures"}
+STAGES = {"calibrate", "recipe", "train", "evaluate", "evaluate_baselines", "figures"}
 
 
 def _tiny(params: dict) -> None:
@@ -27,6 +27,7 @@ def _tiny(params: dict) -> None:
         for key, value in params["study"].items()
         if key in ("main-sparse", "authors-sparse")
     }
+    params["arms"] = ["main", "authors"]
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
@@ -69,7 +70,12 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     assert 0.5 <= preset.aggressive.time_gap <= 2.5 and 20 <= preset.aggressive.v0 <= 45
     # figures: every cell of cells.csv is the mean of its evaluation episodes (one training
     # seed per arm here); run folders are <arm>/<density>/<density>-<family>-s<seed>
-    episodes = pd.read_csv(pipeline / "outputs/pipeline/evaluation/episodes.csv")
+    evaluations = pipeline / "results/evaluation"
+    episodes = pd.concat(
+        [pd.read_parquet(p) for p in sorted(evaluations.glob("*/paper/episodes.parquet"))]
+    )
+    # committed per-episode measures: the ego's distance is its speed samples x 1 s each
+    np.testing.assert_allclose(episodes.distance, episodes.avg_speed * episodes.steps, rtol=1e-6)
     parts = episodes.policy.str.extract(r"^(?:([a-z0-9]+)/[a-z]+/)?[a-z]+-(behavior_rich|default)")
     episodes["arm"] = parts[0].fillna("")
     episodes["family"] = parts[1].fillna(episodes.policy)
@@ -127,7 +133,7 @@ def test_a_second_repro_does_nothing_and_a_parameter_marks_only_its_stages(pipel
         changed = json.loads(run(["dvc", "status", "--json"], pipeline))
     finally:
         _set_eval_episodes(pipeline, 4)
-    assert set(changed) == {"evaluate", "evaluate_stock"}, changed
+    assert set(changed) == {"evaluate@main", "evaluate@authors", "evaluate_baselines"}, changed
     assert "up to date" in run(["dvc", "repro"], pipeline)
 
 
@@ -136,4 +142,32 @@ def test_a_parameter_reruns_only_its_stages(pipeline):
     _set_eval_episodes(pipeline, 5)
     out = run(["dvc", "repro"], pipeline)
     ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
-    assert ran == {"evaluate", "evaluate_stock", "figures"}, out[-2000:]
+    assert ran == {"evaluate@main", "evaluate@authors", "evaluate_baselines", "figures"}, out[
+        -2000:
+    ]
+
+
+def test_figures_recompute_byte_for_byte_from_the_committed_episodes_alone(pipeline, tmp_path):
+    """Without a model or run folder (a fresh clone has none), the figures stage rewrites
+    every file it wrote before, byte for byte, from results/evaluation."""
+    import shutil
+
+    from dvc.repo import Repo
+
+    with Repo(str(pipeline)) as repo:
+        (stage,) = repo.stage.collect("figures")
+        written = [pipeline / str(o.def_path) for o in stage.outs]
+    files = [f for p in written for f in (sorted(p.rglob("*")) if p.is_dir() else [p])]
+    files = [f for f in files if f.is_file()]
+    before = {f: f.read_bytes() for f in files}
+    assert len(before) >= 10
+    shutil.move(pipeline / "outputs", tmp_path / "outputs")  # models and run folders gone
+    try:
+        for f in files:
+            f.unlink()
+        run(["dvc", "repro", "--force", "--single-item", "figures"], pipeline)
+        changed = [str(f.relative_to(pipeline)) for f in files if f.read_bytes() != before[f]]
+        assert not changed, changed
+    finally:
+        shutil.rmtree(pipeline / "outputs", ignore_errors=True)
+        shutil.move(tmp_path / "outputs", pipeline / "outputs")

@@ -334,7 +334,7 @@ def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_traini
     out = run(cfg)
     first = capsys.readouterr().out
     assert first.count("] training ") == 4 and "across 2 training seeds" in first
-    episodes = pd.read_csv(out / "episodes.csv")
+    episodes = pd.read_parquet(out / "episodes.parquet")
     assert set(episodes.policy) == {
         "sparse-behavior_rich-s0", "sparse-default-s0", "sparse-behavior_rich-s1",
         "sparse-default-s1", "idle",
@@ -356,7 +356,7 @@ def test_run_with_several_seeds_reports_intervals_across_seeds_and_reuses_traini
     run(cfg)
     again = capsys.readouterr().out
     assert again.count("] reusing ") == 4 and "] training " not in again
-    pd.testing.assert_frame_equal(pd.read_csv(out / "episodes.csv"), episodes)
+    pd.testing.assert_frame_equal(pd.read_parquet(out / "episodes.parquet"), episodes)
 
 
 def _check_best_checkpoints(cfg, runs: Path) -> None:

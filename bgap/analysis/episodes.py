@@ -8,19 +8,38 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 
 from bgap.analysis.stats import (
     mean_interval,
     seed_rate_interval,
 )
+from bgap.common.errors import ConfigError
+from bgap.common.tables import read_table
 from bgap.common.vocab import CRASH_KINDS
 from bgap.traffic.behaviors import count_aggressive
 from bgap.traffic.scenario import env_preset
 
 MODEL = re.compile(
-    r"^(?:(?P<arm>[^/]+)/(?:[^/]+/)*)?(?P<density>[a-z]+)-(?P<family>behavior_rich|default)"
-    r"-s(?P<seed>\d+)$"
+    r"^(?:(?P<path>.*)/)?(?P<density>[a-z]+)-(?P<family>behavior_rich|default)-s(?P<seed>\d+)$"
 )
+"""A trained policy's name: its run folder's path. The pipeline's layout is
+``[...]/<arm>/<density>/<density>-<family>-s<seed>``; a name without the arm's and the
+density's folders above it (``bgap.run``'s) is arm ``main``."""
+
+
+def policy_parts(names: pd.Series) -> pd.DataFrame:
+    """``arm``, ``density``, ``family`` and ``seed`` of trained policies' names (NaN family:
+    not a trained policy)."""
+    parsed = names.str.extract(MODEL)
+    folders = parsed["path"].fillna("").str.split("/")
+    in_layout = [
+        len(f) >= 2 and f[-1] == d for f, d in zip(folders, parsed["density"], strict=True)
+    ]
+    parsed["arm"] = [f[-2] if ok else "main" for f, ok in zip(folders, in_layout, strict=True)]
+    return parsed
+
+
 METRICS = {"collision_pct": "collision %", "avg_speed": "speed m/s", "lane_changes": "lane changes"}
 KEYS = ["arm", "family", "traffic", "density", "mix", "radius"]
 MIXTURE_ARMS = ("main", "authors")
@@ -44,24 +63,68 @@ def n_of(density: str) -> int | str:
 
 
 # ---------------------------------------------------------------------- episodes
-def load_episodes(results_dir: str | Path, traffic: str = "paper") -> pd.DataFrame:
-    """Episode rows with the arm, family, training seed and traffic parsed and added."""
-    path = Path(results_dir) / "episodes.csv"
-    if not path.exists():
-        raise FileNotFoundError(f"{path} not found: run python -m bgap.evaluate first")
-    df = parse_policies(pd.read_csv(path))
-    df["traffic"] = traffic
-    return df
+EPISODE_FILES = ("episodes.parquet", "episodes.csv")
+"""What ``bgap.evaluate`` writes (the csv: evaluations before the parquet)."""
+
+
+def evaluation_folders(source: str | Path) -> list[Path]:
+    """``source`` itself when it holds an evaluation's episodes, else every folder below it
+    that does (the pipeline's ``results/evaluation/<arm>/<traffic>``), sorted."""
+    source = Path(source)
+    if any((source / name).exists() for name in EPISODE_FILES):
+        return [source]
+    found = sorted({p.parent for name in EPISODE_FILES for p in source.rglob(name)})
+    if not found:
+        raise FileNotFoundError(f"no evaluation episodes in {source}: run bgap.evaluate first")
+    return found
+
+
+def traffic_of(folder: Path) -> str:
+    """``stock`` for an evaluation in highway-env's stock traffic (its saved
+    ``behavior.name``), else ``paper`` (the behaviour presets of the grid)."""
+    config = folder / "config.yaml"
+    if not config.exists():
+        return "paper"
+    behavior = (yaml.safe_load(config.read_text()) or {}).get("behavior") or {}
+    return "stock" if behavior.get("name") == "stock" else "paper"
+
+
+def load_evaluations(
+    sources: list[str | Path], stock: list[str | Path] = ()
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Every evaluation's episodes under ``sources`` (traffic from each one's settings;
+    ``stock``: folders read as stock traffic whatever they say) with arm, family and training
+    seed parsed, and their models tables (``models.csv``: empty where none was written).
+    The same policy, traffic, cell and episode in two folders is refused."""
+    frames, models = [], []
+    for source, forced in [*((s, None) for s in sources), *((s, "stock") for s in stock)]:
+        for folder in evaluation_folders(source):
+            path = next(folder / n for n in EPISODE_FILES if (folder / n).exists())
+            df = read_table(path)
+            df["traffic"] = forced or traffic_of(folder)
+            frames.append(df)
+            if (folder / "models.csv").exists():
+                models.append(read_table(folder / "models.csv"))
+    df = parse_policies(pd.concat(frames, ignore_index=True))
+    key = ["policy", "traffic", "mix", "density", "radius", "seed"]
+    repeated = df.duplicated(key)
+    if repeated.any():
+        first = df[repeated].iloc[0]
+        raise ConfigError(
+            f"policy {first.policy} plays the same episodes in two of the evaluation folders "
+            f"({int(repeated.sum())} repeated episodes); give each evaluation once"
+        )
+    return df, (pd.concat(models, ignore_index=True) if models else pd.DataFrame())
 
 
 def parse_policies(df: pd.DataFrame) -> pd.DataFrame:
     """``arm``, ``family`` and ``train_seed`` columns parsed from policy names (baselines:
     their own name as family, arm "" and seed -1), and ``collision_pct`` per episode."""
     df = df.copy()
-    parsed = df.policy.str.extract(MODEL)
+    parsed = policy_parts(df.policy)
     trained = parsed["family"].notna()
     df["family"] = parsed["family"].fillna(df.policy)
-    df["arm"] = parsed["arm"].where(parsed["arm"].notna(), "main").where(trained, "")
+    df["arm"] = parsed["arm"].where(trained, "")
     df["train_seed"] = pd.to_numeric(parsed["seed"]).fillna(-1).astype(int)
     df["collision_pct"] = 100.0 * df.crashed.astype(float)
     if "traffic" not in df:

@@ -1,11 +1,14 @@
 """The paper's figures and claims from fresh numbers: ``python -m bgap.figures RESULTS_DIR``.
 
-Reads the ``episodes.csv`` that ``bgap.evaluate`` wrote for the study's trainings (named by
-their run folders, ``<arm>/<density>/<density>-<behavior_rich|default>-s<seed>``; a bare
-``<density>-<family>-s<seed>`` is arm ``main``) and the baselines, plus optionally the same
-policies in stock traffic (``--stock``) and the run folders (``--runs``: the checkpoints
-each training kept), and writes to ``--out`` (default ``outputs/figures``; the pipeline's stage:
-``results/``):
+Reads the evaluation folders ``bgap.evaluate`` wrote (``episodes.parquet``, ``models.csv``
+and ``config.yaml`` each; a folder of such folders, such as the pipeline's
+``results/evaluation``, stands for all of them): the study's trainings (named by their run
+folders, ``[...]/<arm>/<density>/<density>-<behavior_rich|default>-s<seed>``; a bare
+``<density>-<family>-s<seed>`` is arm ``main``), the baselines, and the same policies in
+highway-env's stock traffic (an evaluation with ``behavior=stock``, or any folder given with
+``--stock``). Nothing else: no model and no run folder, so a clone recomputes every figure
+from the committed episodes. Writes to ``--out`` (default ``outputs/figures``; the
+pipeline's stage: ``results/``):
 
 - ``cells.csv``: per arm, policy family and cell, the mean over training seeds of collision
   %, speed and lane changes with 95% intervals, ``n_seeds`` and ``n_episodes``, the crash
@@ -40,17 +43,18 @@ def main(argv: list[str] | None = None) -> None:
         description=__doc__.split("\n\n")[0] + " What it writes: docs/pipeline.md.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
-    parser.add_argument("results_dir", help="folder with bgap.evaluate's episodes.csv")
-    parser.add_argument("--stock", help="bgap.evaluate's folder of the same policies in "
-                        "stock traffic (behavior=stock)")  # fmt: skip
-    parser.add_argument("--runs", help="the run folders (the checkpoints each training kept)")
+    parser.add_argument("evaluations", nargs="+", help="bgap.evaluate's output folders, or "
+                        "folders of them (the pipeline: results/evaluation)")  # fmt: skip
+    parser.add_argument("--stock", nargs="*", default=[],
+                        help="evaluation folders to read as stock traffic (one run with "
+                        "behavior=stock is read so anyway)")  # fmt: skip
     parser.add_argument(
         "--out",
         default="outputs/figures",
         help="where figures and tables go (the pipeline: results)",
     )
     args = parser.parse_args(argv)
-    for name, path in make_figures(args.results_dir, args.out, args.stock, args.runs).items():
+    for name, path in make_figures(args.evaluations, args.out, args.stock).items():
         print(f"{name}: {path}")
 
 

@@ -3,8 +3,6 @@ figures."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from bgap.analysis.claims import ablation_table
 from bgap.analysis.episodes import ALPHA, duplicates, n_of
 from bgap.analysis.tables import (
@@ -18,7 +16,7 @@ from bgap.analysis.tables import (
 from bgap.common.vocab import SPEED_FLOOR
 
 
-def readme(df, stats, table, own, results_dir, stock, runs, paths) -> str:
+def readme(df, stats, table, own, sources, models, paths) -> str:
     ablated = ablation_table(df)
     trained = df[df.train_seed >= 0]
     seeds = trained.groupby(["arm", "density", "family"]).train_seed.nunique()
@@ -30,9 +28,10 @@ def readme(df, stats, table, own, results_dir, stock, runs, paths) -> str:
     flagged = own[~own.beats_idle] if len(own) else own
     parts = [
         "# Results (written by `python -m bgap.figures`; do not edit)\n",
-        f"Source: `{results_dir}`"
-        + (f" and `{stock}` (stock traffic)" if stock else "")
-        + f": {len(df):,} evaluation episodes; training seeds per policy and arm: {sizes}. "
+        "Source: "
+        + ", ".join(f"`{s}`" for s in sources)
+        + f": {len(df):,} evaluation episodes ({(df.traffic == 'stock').sum():,} of them in "
+        f"stock traffic); training seeds per policy and arm: {sizes}. "
         f"Figures: {figures}. Per-cell numbers: `cells.csv` (with `n_seeds`, `n_episodes`); "
         f"claims: `claims.csv`; own traffic: `own_traffic.csv`.\n",
         f"Cells that repeat another cell's traffic (the same number of aggressive drivers, "
@@ -70,12 +69,12 @@ def readme(df, stats, table, own, results_dir, stock, runs, paths) -> str:
         "rates there.\n",
         table2(stats),
         "## Where the arms differ\n",
-        departures_markdown(Path(runs) if runs else None),
+        departures_markdown(models),
         "## Checkpoints the trainings kept\n",
         "Each training validates every 50 episodes on 20 episodes of its own traffic and "
         "keeps the validation with the highest mean return under its own reward "
         "(`best_model.zip`, SB3's EvalCallback rule; ours: the paper keeps none); the test "
         "episodes play that checkpoint.\n",
-        selection_markdown(Path(runs) if runs else None),
+        selection_markdown(models),
     ]
     return "\n".join(parts)

@@ -16,7 +16,7 @@ from bgap.analysis.episodes import (
     MIXTURE_ARMS,
     _distinct,
     cell_stats,
-    load_episodes,
+    load_evaluations,
     n_of,
 )
 from bgap.analysis.page import readme
@@ -154,16 +154,15 @@ def ablation(stats: pd.DataFrame, path: Path) -> bool:
 
 # ---------------------------------------------------------------------- the page
 def make_figures(
-    results_dir: str | Path,
-    out: str | Path = "results",
-    stock: str | Path | None = None,
-    runs: str | Path | None = None,
+    sources: list[str | Path],
+    out: str | Path = "outputs/figures",
+    stock: list[str | Path] = (),
 ) -> dict[str, Path]:
+    """The results page, its tables and figures in ``out`` from the evaluations under
+    ``sources`` (and ``stock``, read as stock traffic): :func:`load_evaluations`."""
     out = Path(out)
+    df, models = load_evaluations(list(sources), list(stock))
     (out / "figures").mkdir(parents=True, exist_ok=True)
-    df = load_episodes(results_dir)
-    if stock is not None:
-        df = pd.concat([df, load_episodes(stock, traffic="stock")], ignore_index=True)
     stats, per_seed = cell_stats(df)
     paths = {name: out / f"{name}.csv" for name in ("cells", "claims", "own_traffic")}
     stats.to_csv(paths["cells"], index=False)
@@ -193,5 +192,5 @@ def make_figures(
     if ablation(stats, out / "figures" / "ablation.png"):
         paths["ablation"] = out / "figures" / "ablation.png"
     paths["readme"] = out / "README.md"
-    paths["readme"].write_text(readme(df, stats, table, own, results_dir, stock, runs, paths))
+    paths["readme"].write_text(readme(df, stats, table, own, [*sources, *stock], models, paths))
     return paths

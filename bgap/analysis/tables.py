@@ -4,12 +4,10 @@ checkpoints each training selected and the departures from the paper."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pandas as pd
-from omegaconf import OmegaConf
 
-from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, n_of
+from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, n_of, policy_parts
 from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
 
 
@@ -114,40 +112,41 @@ def own_markdown(own: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-def selection_markdown(runs: Path | None) -> str:
-    """Where the trainings' kept checkpoints come from (``best.json`` of each run folder)."""
-    if runs is None or not Path(runs).exists():
-        return "(run folders not given)\n"
-    rows = []
-    for path in sorted(Path(runs).rglob("best.json")):
-        best = json.loads(path.read_text())
-        ev = pd.read_csv(path.parent / "evaluations.csv")
-        arm = path.relative_to(runs).parts[0]
-        rows.append({"arm": arm, "run": path.parent.name, "chosen": best["episodes"],
-                     "of": int(ev.episodes.max()), "collision": best["collision_pct"],
-                     "last": float(ev.collision_pct.iloc[-1])})  # fmt: skip
-    if not rows:
+def _arms(models: pd.DataFrame) -> pd.Series:
+    return policy_parts(models.policy)["arm"]
+
+
+def selection_markdown(models: pd.DataFrame) -> str:
+    """Where the trainings' kept checkpoints come from (the evaluations' ``models.csv``: each
+    run folder's ``best.json`` and last validation)."""
+    if "chosen_episodes" not in models:
+        return "(no models table: the evaluations wrote no models.csv)\n"
+    t = models.dropna(subset=["chosen_episodes"]).assign(arm=_arms)
+    if not len(t):
         return "(no training validated periodically: the last parameters are evaluated)\n"
-    t = pd.DataFrame(rows)
     lines = ["| arm | trainings | chosen at episode (median, range) | validation collision % "
              "chosen / last (means) |", "|---|---|---|---|"]  # fmt: skip
     for arm, g in t.groupby("arm"):
-        lines.append(f"| {arm} | {len(g)} | {g.chosen.median():.0f} ({g.chosen.min()}-"
-                     f"{g.chosen.max()} of {g['of'].max()}) | {g.collision.mean():.1f} / "
-                     f"{g['last'].mean():.1f} |")  # fmt: skip
+        chosen = g.chosen_episodes.astype(int)
+        collisions = f"{g.chosen_collision_pct.mean():.1f} / {g.last_collision_pct.mean():.1f}"
+        of = int(g.validated_episodes.max())
+        lines.append(f"| {arm} | {len(g)} | {chosen.median():.0f} ({chosen.min()}-"
+                     f"{chosen.max()} of {of}) | {collisions} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
-def departures_markdown(runs: Path | None) -> str:
+def departures_markdown(models: pd.DataFrame) -> str:
     """The settings in which the main arm (the recipe) departs from the authors' arm (their
-    2020 configuration under the paper's protocol), read from the trainings' saved configs."""
+    2020 configuration under the paper's protocol), from the trainings' saved settings."""
     configs = {}
-    for arm in MIXTURE_ARMS:
-        found = sorted((Path(runs) / arm).rglob("config.yaml")) if runs else []
-        if found:
-            configs[arm] = OmegaConf.to_container(OmegaConf.load(found[0]))
+    if "settings" in models:
+        found = models.dropna(subset=["settings"]).assign(arm=_arms).sort_values("policy")
+        for arm in MIXTURE_ARMS:
+            rows = found[found.arm == arm]
+            if len(rows):
+                configs[arm] = json.loads(rows.settings.iloc[0])
     if len(configs) < 2:
-        return "(needs the run folders of both arms)\n"
+        return "(needs the models tables of both arms)\n"
     lines = ["| setting | authors' arm (their 2020 configuration) | main arm (recipe) |",
              "|---|---|---|"]  # fmt: skip
     for group in ("reward", "agent", "profile"):

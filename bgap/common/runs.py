@@ -66,6 +66,8 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
 MODEL, BEST_MODEL = "model.zip", "best_model.zip"
 """A training's final parameters, and the checkpoint its periodic validations chose
 (:class:`bgap.agents.monitor.TrainingMonitor`)."""
+CONFIG = "config.yaml"
+"""Every run folder's resolved settings, written by :func:`save_run_metadata`."""
 
 
 def model_file(run_dir: str | Path, checkpoint: str = "best") -> Path:
@@ -135,7 +137,7 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
     out = Path(out_dir)
     conf = cfg if OmegaConf.is_config(cfg) else OmegaConf.structured(cfg)
     current = OmegaConf.to_container(conf, resolve=True)
-    stored_path = out / "config.yaml"
+    stored_path = out / CONFIG
     refuse_foreign(out)
     if stored_path.exists() and not only_metadata(out):
         differs = other_settings(stored_path, current, ignore)
@@ -152,7 +154,7 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
     return out
 
 
-METADATA = ("config.yaml", "command.txt", LOCK)
+METADATA = (CONFIG, "command.txt", LOCK)
 
 
 def only_metadata(folder: Path) -> bool:
@@ -164,7 +166,7 @@ def only_metadata(folder: Path) -> bool:
 def refuse_foreign(folder: Path) -> None:
     """Refuse an output folder that holds files no bgap command wrote (no ``config.yaml``
     beside them): they are the user's, and a command would overwrite them."""
-    if not folder.is_dir() or (folder / "config.yaml").exists():
+    if not folder.is_dir() or (folder / CONFIG).exists():
         return
     files = sorted(p.name for p in folder.iterdir() if p.is_file() and p.name != LOCK)
     if files:

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from bgap.agents.policies import as_policy, load_model, rollout
@@ -32,7 +32,8 @@ from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import CONF_DIR
-from bgap.common.runs import MODEL, model_file, save_run_metadata
+from bgap.common.runs import CONFIG, MODEL, model_file, save_run_metadata, write_atomic
+from bgap.common.tables import read_table
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.traffic.scenario import env_config, env_preset
@@ -70,6 +71,8 @@ def _evaluate_chunk(
         return []  # a model sees a fixed number of vehicles: only its own density
     key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}
     episodes = rollout(env_cfg, policy, seeds, backend).episodes
+    # the speed samples avg_speed averages, one per policy step, times the step's duration
+    episodes["distance"] = episodes.avg_speed * episodes.steps / env_cfg["policy_frequency"]
     return [{**key, **row} for row in episodes.to_dict(orient="records")]
 
 
@@ -148,6 +151,39 @@ def evaluate(
     return pd.DataFrame(rows)
 
 
+STORED = {
+    "avg_speed": "float32", "distance": "float32", "return": "float32", "lane_changes": "int16",
+    "steps": "int16", "seed": "int64", "mix": "float64", "radius": "float64",
+}  # fmt: skip
+"""Stored types of the episode columns: single precision (7 digits) for the per-episode
+measures keeps the study's episodes in a few MB of parquet. The commands apply it before
+they summarise, so every summary, figure and claim reads the numbers that are stored
+(:func:`evaluate` itself returns full precision)."""
+
+
+def compact(episodes: pd.DataFrame) -> pd.DataFrame:
+    """The episode table in its stored types (:data:`STORED`; reward terms ``r_*``
+    single precision too)."""
+    types = {c: t for c, t in STORED.items() if c in episodes}
+    types |= {c: "float32" for c in episodes if c.startswith("r_")}
+    return episodes.astype(types)
+
+
+EPISODES = "episodes.parquet"
+"""The evaluation's per-episode table (zstd-compressed parquet)."""
+
+
+def read_episodes(folder: str | Path) -> pd.DataFrame:
+    """An evaluation folder's episodes: ``episodes.parquet``, or the ``episodes.csv`` that
+    evaluations before it wrote (in the stored types)."""
+    folder = Path(folder)
+    if (folder / EPISODES).exists():
+        return read_table(folder / EPISODES)
+    if (folder / "episodes.csv").exists():
+        return compact(read_table(folder / "episodes.csv"))
+    raise FileNotFoundError(f"no {EPISODES} in {folder}: run python -m bgap.evaluate first")
+
+
 def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per policy and cell: collision %, average speed, lane changes, each with a 95% CI."""
     rows = []
@@ -186,9 +222,12 @@ def crash_split(episodes: pd.DataFrame) -> dict[str, float]:
 
 def write_results(out: Path, episodes: pd.DataFrame, summary: pd.DataFrame) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    episodes.to_csv(out / "episodes.csv", index=False)
-    summary.to_csv(out / "summary.csv", index=False)
-    (out / "summary.json").write_text(json.dumps(summary.to_dict(orient="records"), indent=1))
+    write_atomic(
+        out / EPISODES,
+        lambda tmp: episodes.to_parquet(tmp, index=False, compression="zstd", compression_level=19),
+    )
+    write_atomic(out / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False))
+    write_atomic(out / "summary.json", json.dumps(summary.to_dict(orient="records"), indent=1))
 
 
 def format_table(summary: pd.DataFrame) -> str:
@@ -215,8 +254,16 @@ def format_table(summary: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
-    """Bars per policy (one group per cell) with 95% CIs, as in the paper's figures."""
+MAX_BARS = 240
+"""Policies x cells beyond which :func:`plot_comparison` draws nothing (a study's 40
+trainings on 42 cells would be 1,680 bars: the figures stage plots those)."""
+
+
+def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> bool:
+    """Bars per policy (one group per cell) with 95% CIs, as in the paper's figures; False
+    (nothing drawn) beyond :data:`MAX_BARS` bars."""
+    if len(summary) > MAX_BARS:
+        return False
     plt = pyplot()
 
     metrics = [
@@ -247,6 +294,7 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+    return True
 
 
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
@@ -264,9 +312,10 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
             )
             if not found:
                 raise FileNotFoundError(f"no {MODEL} in {m} or its subfolders")
-            # named by their path below m: <arm>/<density>/<density>-<family>-s<seed>
-            specs.update({d.relative_to(m).as_posix(): str(model_file(d, cfg.checkpoint))
-                          for d in found})  # fmt: skip
+            # named by m's name and their path below it: <arm>/<density>/<density>-<family>-
+            # s<seed> for an arm's folder, runs/<arm>/<density>/... for the pipeline's runs
+            specs.update({f"{m.resolve().name}/{d.relative_to(m).as_posix()}":
+                          str(model_file(d, cfg.checkpoint)) for d in found})  # fmt: skip
         elif m.is_dir():
             specs[m.name] = str(model_file(m, cfg.checkpoint))
         else:
@@ -275,17 +324,55 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     return specs
 
 
+MODELS = "models.csv"
+"""One row per evaluated model: its run folder's checkpoint choice and settings."""
+
+
+def model_records(specs: dict[str, Any]) -> pd.DataFrame:
+    """Per saved model in ``specs``: the file evaluated, the checkpoint its training's
+    validations chose (``best.json``: episode and validation collision %) beside its last
+    validation, and the training's reward, agent and profile settings (JSON), so that the
+    figures describe the trainings without their run folders."""
+    rows = []
+    for name, spec in specs.items():
+        if not isinstance(spec, (str, Path)) or str(spec) in BASELINES:
+            continue
+        run = Path(spec).parent
+        row: dict[str, Any] = {"policy": name, "model": Path(spec).name}
+        if (run / "best.json").exists() and (run / "evaluations.csv").exists():
+            best = json.loads((run / "best.json").read_text())
+            validations = read_table(run / "evaluations.csv")
+            row |= {
+                "chosen_episodes": best["episodes"],
+                "chosen_collision_pct": best["collision_pct"],
+                "validated_episodes": int(validations.episodes.max()),
+                "last_collision_pct": float(validations.collision_pct.iloc[-1]),
+            }
+        if (run / CONFIG).exists():
+            settings = OmegaConf.to_container(OmegaConf.load(run / CONFIG), resolve=True)
+            kept = {g: settings.get(g) for g in ("reward", "agent", "profile")}
+            row["settings"] = json.dumps(kept, sort_keys=True)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
 @app("evaluate", "bgap.evaluate", SCHEMAS, "no results were written; rerun the command")
 def main(dcfg: DictConfig) -> None:
 
     cfg: ExperimentConfig = load(dcfg)
     out = Path(cfg.out or Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}")
     save_run_metadata(out, dcfg)
-    episodes = evaluate(cfg, policy_specs(cfg))
+    specs = policy_specs(cfg)
+    episodes = compact(evaluate(cfg, specs))  # what is stored is what is summarised
     summary = summarize(episodes)
     write_results(out, episodes, summary)
-    plot_comparison(summary, out / "comparison.png")
-    print(format_table(summary))
+    models = model_records(specs)
+    if len(models):
+        write_atomic(out / MODELS, lambda tmp: models.to_csv(tmp, index=False))
+    if not plot_comparison(summary, out / "comparison.png"):
+        print(f"comparison.png not drawn: {len(summary)} bars (at most {MAX_BARS})")
+    if len(summary) <= MAX_BARS:
+        print(format_table(summary))
     print(f"results in {out}")
 
 

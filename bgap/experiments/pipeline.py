@@ -26,6 +26,7 @@ from typing import Any
 import yaml
 
 from bgap.common.cli import OneLineParser
+from bgap.common.runs import CONFIG
 
 ROOT = Path(__file__).resolve().parents[2]
 """The repository (this file is bgap/experiments/pipeline.py)."""
@@ -249,7 +250,13 @@ def _same(a: Path, b: Path) -> bool:
     """Whether two output files hold the same result. Byte for byte, but for zip archives
     (Stable-Baselines3's models), whose members are compared rather than the archives: each
     entry carries the time it was written, and the human-readable part of SB3's ``data``
-    prints object addresses (``<function ... at 0x7f...>``) beside the serialised values."""
+    prints object addresses (``<function ... at 0x7f...>``) beside the serialised values.
+    And for a run's resolved settings (``config.yaml``), where ``b`` may hold settings that
+    ``a``'s code did not have: every setting of ``a`` must be in ``b`` with the same value
+    (a setting added with a default that reproduces the old results; the other outputs show
+    whether it does)."""
+    if a.name == CONFIG and b.name == CONFIG:
+        return _kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
     if a.suffix != ".zip":
         return filecmp.cmp(a, b, shallow=False)
     with zipfile.ZipFile(a) as za, zipfile.ZipFile(b) as zb:
@@ -260,6 +267,14 @@ def _same(a: Path, b: Path) -> bool:
             else za.read(n) == zb.read(n)
             for n in za.namelist()
         )  # fmt: skip
+
+
+def _kept(old: Any, new: Any) -> bool:
+    """Whether ``new`` holds every setting of ``old`` with the same value (dicts may gain
+    keys; anything else must be equal)."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return all(k in new and _kept(v, new[k]) for k, v in old.items())
+    return bool(old == new)
 
 
 def _unaddressed(data: bytes) -> bytes:

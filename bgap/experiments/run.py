@@ -4,7 +4,7 @@ Trains (or reuses, when a finished run with the same config exists under ``root`
 behaviour-rich policy and the default policy for the chosen density, evaluates both with
 the scripted baselines on identical seeded episodes at the chosen mix and radius (or the
 ``grid``), prints a comparison table like the paper's bars and writes, under
-``<root>/results/<name>/``: ``summary.csv`` / ``.json``, ``episodes.csv``,
+``<root>/results/<name>/``: ``summary.csv`` / ``.json``, ``episodes.parquet``,
 ``comparison.png``, ``config.yaml`` and ``command.txt``.
 """
 
@@ -26,6 +26,7 @@ from bgap.common.vocab import POLICIES
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.evaluate import (
+    compact,
     crash_split,
     evaluate,
     format_table,
@@ -79,7 +80,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     if dcfg is not None:
         save_run_metadata(out, dcfg)
     policies = {**models, **{b: b for b in cfg.baselines}}
-    episodes = evaluate(cfg, policies)
+    episodes = compact(evaluate(cfg, policies))  # what is stored is what is summarised
     summary = summarize(episodes)
     write_results(out, episodes, summary)
     title = f"{cfg.env.name}, behaviour {cfg.behavior.name}, {cfg.profile.name} profile"
