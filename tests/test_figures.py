@@ -134,3 +134,45 @@ def test_policy_names_give_the_arm_only_in_the_pipelines_layout():
     df = parse_policies(pd.DataFrame({"policy": list(names), "crashed": False}))
     got = dict(zip(df.policy, zip(df.arm, df.family, df.train_seed, strict=True), strict=True))
     assert got == names
+
+
+def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
+    """Hand-built cell, 100 episodes of 40 s each, crashes placed exactly: behaviour-rich 2
+    crashes at 28 m/s (2 per 112 km: 1.79 per 100 km) beats the rule-based ego's 4 at 28.5
+    (3.51); default 1 at 20 m/s (1.25) is safer but under 0.95 x 28.5: trades; the authors'
+    behaviour-rich 6 at 27 (5.56) is beaten. Each seed's rate is its crashes over its km."""
+    from bgap.analysis.plots import speed_vs_safety
+    from bgap.analysis.tables import rule_markdown
+
+    def episodes(policy, crashes, speed, seeds=(0, 1)):
+        frames = []
+        for s in seeds:
+            crashed = np.zeros(100, bool)
+            crashed[:crashes] = True
+            frames.append(pd.DataFrame({
+                "policy": policy.format(s=s), "mix": 0.5, "density": "dense", "radius": 180.0,
+                "seed": np.arange(100), "crashed": crashed, "avg_speed": speed,
+                "lane_changes": 0, "steps": 40, "distance": speed * 40.0,
+            }))  # fmt: skip
+        return frames
+
+    df = parse_policies(pd.concat([
+        *episodes("main/dense/dense-behavior_rich-s{s}", 2, 28.0),
+        *episodes("main/dense/dense-default-s{s}", 1, 20.0),
+        *episodes("authors/dense/dense-behavior_rich-s{s}", 6, 27.0),
+        *episodes("rule", 4, 28.5, seeds=(0,)), *episodes("idle", 10, 25.0, seeds=(0,)),
+    ], ignore_index=True))  # fmt: skip
+    df["traffic"] = "paper"
+    stats, _ = cell_stats(df)
+    rate = stats.set_index(["arm", "family"]).per_100km
+    assert rate["main", "behavior_rich"] == pytest.approx(2 / 112 * 100)
+    assert rate["", "rule"] == pytest.approx(4 / 114 * 100)
+    assert (stats.per_100km_lo < stats.per_100km).all() and (
+        stats.per_100km < stats.per_100km_hi
+    ).all()
+    table = rule_markdown(stats)
+    rows = {line.split(" | ")[0].strip("| "): line for line in table.splitlines()}
+    assert "**beats**" in rows["bgap behavior-rich DQN, recipe (main arm)"]
+    assert "trades" in rows["bgap default DQN, recipe (main arm)"]
+    assert "beaten" in rows["bgap behavior-rich DQN, authors' 2020 configuration"]
+    assert speed_vs_safety(stats, tmp_path / "s.png") and (tmp_path / "s.png").stat().st_size

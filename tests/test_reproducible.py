@@ -13,6 +13,18 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+RERUNNING = {
+    *(f"train@{arm}-{density}" for arm in ("main", "authors", "mix0", "mix50", "mix100")
+      for density in ("sparse", "dense")),
+    *(f"evaluate@{arm}" for arm in ("main", "authors", "mix0", "mix50", "mix100")),
+    "evaluate_baselines", "figures",
+}  # fmt: skip
+"""Stages whose committed lock predates code that changes what they compute, being rerun:
+the study's retraining with the sum-tree sampler and its evaluation per arm (issue 38).
+Each must still be stale (a rerun stage leaves this set in the same commit); no other
+stage may be."""
+
+
 def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_path):
     """``dvc status`` in a clone of the committed tree: outputs not pulled yet are fine
     (models and episodes live in the DVC cache), changed code, parameters or commands are
@@ -36,4 +48,6 @@ def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_pa
                 deps = {k: v for k, v in change.get("changed deps", {}).items() if v != "deleted"}
                 if deps or "changed command" in change:
                     stale[stage] = deps or change
-    assert not stale, json.dumps(stale, indent=1)[:3000]
+    unexpected = {k: v for k, v in stale.items() if k not in RERUNNING}
+    assert not unexpected, json.dumps(unexpected, indent=1)[:3000]
+    assert RERUNNING <= set(stale), f"rerun, remove from RERUNNING: {RERUNNING - set(stale)}"

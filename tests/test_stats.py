@@ -103,3 +103,32 @@ def test_a_rate_interval_over_seeds_is_never_of_zero_width():
     lo, hi = seed_rate_interval([np.zeros(100), np.ones(100) * (np.arange(100) < 40)], rng)
     assert lo < 0.1 < 0.3 < hi  # two seeds at 0% and 40%: the seeds' spread dominates
     assert bootstrap_test(np.array([-1.0, 1.0, 2.0, 3.0]), level=0.5)[2] == 0.5
+
+
+def test_poisson_interval_equals_textbook_values():
+    """Garwood's exact interval: 0 events -> [0, -ln(0.025)] = [0, 3.689]; 10 events ->
+    [4.795, 18.390] (tables of the Poisson mean's exact limits), per unit of exposure."""
+    from bgap.analysis.stats import poisson_interval
+
+    assert poisson_interval(0, 1.0) == (0.0, pytest.approx(-np.log(0.025), rel=1e-9))
+    lo, hi = poisson_interval(10, 2.0)
+    assert (lo, hi) == (pytest.approx(4.7954 / 2, abs=1e-4), pytest.approx(18.3904 / 2, abs=1e-4))
+
+
+def test_collisions_per_100km_of_a_hand_built_set_of_episodes():
+    """Three episodes: 10 km without a crash, 20 km ending in one, 20 km ending in one:
+    2 crashes over 50 km = 4 per 100 km; per seed, the mean of the seeds' own rates."""
+    from bgap.analysis.stats import per_100km, seed_per_100km_interval
+
+    crashes, metres = np.array([0, 1, 1]), np.array([10_000.0, 20_000.0, 20_000.0])
+    rate, lo, hi = per_100km(crashes, metres)
+    assert rate == pytest.approx(4.0) and lo < 4.0 < hi
+    # two seeds: 0 crashes over 50 km and 2 over 50 km -> (0 + 4) / 2 = 2 per 100 km
+    rng = np.random.default_rng(0)
+    mean, lo, hi = seed_per_100km_interval(
+        [np.zeros(3), crashes], [metres, metres], rng, draws=2000
+    )
+    assert mean == pytest.approx(2.0) and lo < 2.0 < hi
+    # a policy that never crashed still gets an upper bound (3.689 events over 100 km)
+    mean, lo, hi = seed_per_100km_interval([np.zeros(3)] * 2, [metres] * 2, rng, draws=200)
+    assert (mean, lo) == (0.0, 0.0) and hi == pytest.approx(3.689, abs=1e-3)

@@ -12,6 +12,7 @@ import yaml
 
 from bgap.analysis.stats import (
     mean_interval,
+    seed_per_100km_interval,
     seed_rate_interval,
 )
 from bgap.common.errors import ConfigError
@@ -181,7 +182,9 @@ def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Per arm, family, traffic and cell: mean over training seeds of each metric and its 95%
     interval; returns (cells, per-seed means). Collision %: the two-level bootstrap across
     seeds widened to the pooled Wilson interval (:func:`bgap.analysis.stats.seed_rate_interval`,
-    never of zero width); speed and lane changes: Student t across seed means (across
+    never of zero width); collisions per 100 km (episodes with the ego's distance): each
+    seed's crashes over its kilometres, averaged over seeds, the two-level bootstrap widened
+    to the pooled Poisson interval; speed and lane changes: Student t across seed means (across
     episodes with one seed)."""
     keys = [k for k in KEYS if k in df]
     per_seed = df.groupby([*keys, "train_seed"])[list(METRICS)].mean().reset_index()
@@ -195,6 +198,14 @@ def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         rate, lo, hi, n_seeds = _rate(episodes, rng)
         row |= {"seeds": n_seeds, "n_seeds": n_seeds, "n_episodes": len(episodes)}
         row |= {"collision_pct": rate, "collision_pct_lo": lo, "collision_pct_hi": hi}
+        if "distance" in episodes:
+            by_seed = episodes.sort_values(["mix", "radius", "seed"]).groupby("train_seed")
+            row["per_100km"], row["per_100km_lo"], row["per_100km_hi"] = seed_per_100km_interval(
+                [g.crashed.to_numpy(float) for _, g in by_seed],
+                [g.distance.to_numpy(float) for _, g in by_seed],
+                rng,
+            )
+            row["km"] = float(episodes.distance.sum()) / 1000
         for m in ("avg_speed", "lane_changes"):
             row[m] = float(g[m].mean())
             values = g[m].to_numpy() if len(g) > 1 else episodes[m].to_numpy(dtype=float)

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 from bgap.analysis.claims import ablation_table
 from bgap.analysis.episodes import ALPHA, duplicates, n_of
+from bgap.analysis.stats import RULE_FLOOR
 from bgap.analysis.tables import (
     claims_markdown,
     departures_markdown,
     own_markdown,
     paper_comparison,
+    rule_markdown,
     selection_markdown,
     table2,
 )
@@ -44,6 +46,16 @@ def readme(df, stats, table, own, sources, models, paths) -> str:
         "comparisons below are not evidence about behaviour-rich training.\n",
         own_markdown(own) if len(own) else "(no trained policies)\n",
         (f"**{len(flagged)} flagged.**\n" if len(flagged) else "None flagged.\n"),
+        "## Against the rule-based ego, per kilometre\n",
+        "The yardstick a learned policy must beat (issue 32): the rule-based ego (IDM + "
+        "MOBIL over the meta-actions) on the same episodes. A slower policy drives fewer "
+        "kilometres per episode, so safety is read per 100 km of ego travel (the ego's speed "
+        "sampled each policy step x the step's duration) as well as per episode. A policy "
+        f"**beats** the rule-based ego with fewer collisions per 100 km at a mean speed of at "
+        f"least {RULE_FLOOR:g} x its speed; is *beaten* with no fewer and no faster; else "
+        "trades. Point estimates decide; intervals in `cells.csv` (`per_100km_lo`, "
+        "`per_100km_hi`) and in `figures/speed_vs_safety.png`.\n",
+        rule_markdown(stats),
         "## The paper's claims\n",
         "a - b as the claim reads (collision percentage points, m/s or lane changes per "
         "episode). Training seeds are the independent units: two-level bootstrap (seeds, then "

@@ -21,6 +21,7 @@ from bgap.analysis.episodes import (
 )
 from bgap.analysis.page import readme
 from bgap.analysis.paper import PAPER_CRASHES
+from bgap.analysis.stats import RULE_FLOOR
 from bgap.analysis.tables import table2
 from bgap.common.plotting import pyplot
 
@@ -152,6 +153,59 @@ def ablation(stats: pd.DataFrame, path: Path) -> bool:
     return True
 
 
+def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
+    """Per density (rows) and mix (columns), largest radius: each trained policy's mean
+    speed against its collisions per 100 km (95% intervals both ways), the rule-based ego
+    (star) and idle (square) on the same episodes; the shaded corner is where a policy beats
+    the rule-based ego (fewer collisions per 100 km at >= RULE_FLOOR x its speed)."""
+    g = stats[(stats.traffic == "paper") & stats.duplicate_of.isna()] if len(stats) else stats
+    if "per_100km" not in g or g.empty:
+        return False
+    g = g[g.radius == g.radius.max()]
+    densities = [d for d in ("sparse", "dense") if d in set(g.density)]
+    mixes = sorted(set(g.mix))
+    plt = pyplot()
+    fig, axes = plt.subplots(len(densities), len(mixes), squeeze=False,
+                             figsize=(2.6 * len(mixes), 2.6 * len(densities)))  # fmt: skip
+    trained = g[g.arm != ""][["arm", "family"]].drop_duplicates()
+    colors = {tuple(k): f"C{i}" for i, k in enumerate(trained.itertuples(index=False))}
+    for r, density in enumerate(densities):
+        for c, mix in enumerate(mixes):
+            ax, here = axes[r, c], g[(g.density == density) & (g.mix == mix)]
+            rule = here[here.family == "rule"]
+            if len(rule):
+                x, y = float(rule.per_100km.iloc[0]), float(rule.avg_speed.iloc[0])
+                ax.fill_between([0, x], RULE_FLOOR * y, 40, color="tab:green", alpha=0.12)
+            for _, s in here.iterrows():
+                style = {"rule": dict(marker="*", ms=11, color="k"),
+                         "idle": dict(marker="s", ms=6, color="0.5")}.get(s.family)  # fmt: skip
+                if style is None:
+                    style = dict(marker="o", ms=5, color=colors[(s.arm, s.family)])
+                ax.errorbar(s.per_100km, s.avg_speed, capsize=2, lw=0.8, ls="none",
+                            xerr=[[max(s.per_100km - s.per_100km_lo, 0)],
+                                  [max(s.per_100km_hi - s.per_100km, 0)]],
+                            yerr=[[max(s.avg_speed - s.avg_speed_lo, 0)],
+                                  [max(s.avg_speed_hi - s.avg_speed, 0)]], **style)  # fmt: skip
+            ax.set_ylim(max(here.avg_speed_lo.min() - 1, 0), here.avg_speed_hi.max() + 1)
+            ax.set_xlim(0, max(here.per_100km_hi.max() * 1.05, 1e-3))
+            ax.set_title(f"{density}, mix {mix:g}", fontsize=8)
+            ax.tick_params(labelsize=7)
+            if r == len(densities) - 1:
+                ax.set_xlabel("collisions per 100 km", fontsize=8)
+            if c == 0:
+                ax.set_ylabel("speed [m/s]", fontsize=8)
+    handles = [plt.Line2D([], [], marker="o", ls="none", color=col,
+                          label=f"{arm} {family.replace('_', '-')}")
+               for (arm, family), col in colors.items()]  # fmt: skip
+    handles += [plt.Line2D([], [], marker="*", ms=11, ls="none", color="k", label="rule-based"),
+                plt.Line2D([], [], marker="s", ls="none", color="0.5", label="idle")]  # fmt: skip
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=7)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 # ---------------------------------------------------------------------- the page
 def make_figures(
     sources: list[str | Path],
@@ -191,6 +245,8 @@ def make_figures(
     paper_vs_ours(stats, paths["paper_vs_ours"], arms[0] if arms else "main")
     if ablation(stats, out / "figures" / "ablation.png"):
         paths["ablation"] = out / "figures" / "ablation.png"
+    if speed_vs_safety(stats, out / "figures" / "speed_vs_safety.png"):
+        paths["speed_vs_safety"] = out / "figures" / "speed_vs_safety.png"
     paths["readme"] = out / "README.md"
     paths["readme"].write_text(readme(df, stats, table, own, [*sources, *stock], models, paths))
     return paths

@@ -1,7 +1,8 @@
 """Confidence intervals, in one place for evaluation, figures and the parity study.
 
-Rates get Wilson score intervals (never of zero width, also at 0 or n events); means get
-Student t intervals; differences between policies whose independent units are training
+Rates get Wilson score intervals (never of zero width, also at 0 or n events); rates per
+distance driven (collisions per 100 km) exact Poisson intervals; means get Student t
+intervals; differences between policies whose independent units are training
 seeds get a two-level bootstrap (:func:`seed_bootstrap`); a table of claims gets Holm's
 correction (:func:`holm`). The rule that judges a policy against the idle ego is here too
 (:func:`constrained_score`, :func:`beats_idle`), so the sweeps, bgap.run's flags and the
@@ -14,6 +15,7 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
+from scipy.stats import chi2
 from scipy.stats import t as student_t
 
 from bgap.common.vocab import SPEED_FLOOR
@@ -34,6 +36,57 @@ def wilson_interval(k: int, n: int, z: float = Z95) -> tuple[float, float]:
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     lo, hi = centre - half, centre + half
     return (0.0 if k == 0 else max(0.0, min(lo, p))), (1.0 if k == n else min(1.0, max(hi, p)))
+
+
+def poisson_interval(k: int, exposure: float, level: float = 0.95) -> tuple[float, float]:
+    """Exact (Garwood) interval of an event rate per unit of ``exposure`` from ``k`` events:
+    chi-square quantiles of 2k and 2k + 2 degrees of freedom, halved. Never of zero width: 0
+    events in E units reads [0, 3.69 / E]. NaN without exposure."""
+    if exposure <= 0:
+        return float("nan"), float("nan")
+    tail = (1 - level) / 2
+    lo = 0.0 if k == 0 else chi2.ppf(tail, 2 * k) / 2
+    hi = chi2.ppf(1 - tail, 2 * k + 2) / 2
+    return float(lo / exposure), float(hi / exposure)
+
+
+PER_KM = 100_000.0
+"""Metres in the unit of exposure-normalised safety: collisions per 100 km."""
+
+
+def per_100km(crashes: np.ndarray, distance: np.ndarray) -> tuple[float, float, float]:
+    """Collisions per 100 km of ego travel over episodes (``distance`` in m), with the exact
+    Poisson interval: an episode ends at its first crash, so crashes count events over the
+    distance driven."""
+    k, exposure = int(np.sum(crashes)), float(np.sum(distance)) / PER_KM
+    lo, hi = poisson_interval(k, exposure)
+    return (k / exposure if exposure > 0 else float("nan")), lo, hi
+
+
+def seed_per_100km_interval(
+    crashes: Sequence[np.ndarray],
+    distance: Sequence[np.ndarray],
+    rng: np.random.Generator,
+    draws: int = 4000,
+) -> tuple[float, float, float]:
+    """Collisions per 100 km averaged over training seeds (each seed's crashes over its own
+    distance), and its 95% interval: a two-level bootstrap (seeds, then each seed's
+    episodes, crash and distance together), widened where needed to the pooled episodes'
+    Poisson interval, so never of zero width (as :func:`seed_rate_interval`)."""
+    pairs = [(np.asarray(c, dtype=float), np.asarray(d, dtype=float) / PER_KM)
+             for c, d in zip(crashes, distance, strict=True)]  # fmt: skip
+    rates = [c.sum() / d.sum() for c, d in pairs]
+    pick = rng.integers(len(pairs), size=(draws, len(pairs)))
+    dist = np.empty(pick.shape)
+    for s, (c, d) in enumerate(pairs):
+        slots = pick == s
+        if slots.any():
+            idx = rng.integers(len(c), size=(int(slots.sum()), len(c)))
+            dist[slots] = c[idx].sum(axis=1) / d[idx].sum(axis=1)
+    lo, hi, _ = bootstrap_test(dist.mean(axis=1), observed=float(np.mean(rates)))
+    _, p_lo, p_hi = per_100km(np.concatenate([c for c, _ in pairs]),
+                              np.concatenate([d for _, d in pairs]) * PER_KM)  # fmt: skip
+    return float(np.mean(rates)), min(lo, p_lo), max(hi, p_hi)
 
 
 def t_interval(x: np.ndarray) -> tuple[float, float]:
@@ -172,6 +225,23 @@ def seed_rate_interval(
     pooled = np.concatenate([np.asarray(g, dtype=float) for g in groups])
     w_lo, w_hi = wilson_interval(int(pooled.sum()), len(pooled))
     return min(lo, w_lo), max(hi, w_hi)
+
+
+RULE_FLOOR = 0.95
+"""The speed a learned policy must keep, as a share of the rule-based ego's, to count as
+beating it (issue 32's yardstick)."""
+
+
+def versus_rule(per100: float, speed: float, rule_per100: float, rule_speed: float) -> str:
+    """A policy read against the rule-based ego on the same episodes, by point estimates:
+    ``beats`` it with fewer collisions per 100 km at a mean speed of at least
+    :data:`RULE_FLOOR` x its speed; is ``beaten`` by it with no fewer collisions per 100 km
+    and no higher speed; else ``trades`` (safer but slower, or faster but less safe)."""
+    if per100 < rule_per100 and speed >= RULE_FLOOR * rule_speed:
+        return "beats"
+    if per100 >= rule_per100 and speed <= rule_speed:
+        return "beaten"
+    return "trades"
 
 
 def holm(pvalues: np.ndarray) -> np.ndarray:

@@ -9,6 +9,7 @@ import pandas as pd
 
 from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, n_of, policy_parts
 from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
+from bgap.analysis.stats import versus_rule
 
 
 # ---------------------------------------------------------------------- tables
@@ -162,3 +163,50 @@ def departures_markdown(models: pd.DataFrame) -> str:
         "update per transition; 1 is one per vector step of 2 environments."
     )
     return "\n".join(lines) + "\n"
+
+
+SYMBOLS = {"beats": "**beats**", "beaten": "beaten", "trades": "trades"}
+
+
+def rule_markdown(stats: pd.DataFrame) -> str:
+    """Every policy against the rule-based ego in each cell of the paper's traffic (largest
+    radius, cells that repeat another's traffic left out): collisions per 100 km at mean
+    speed, and the verdict of :func:`bgap.analysis.stats.versus_rule`; the last column pools
+    the cells (the mean of their rates and speeds) and judges the pool the same way."""
+    if "per_100km" not in stats:
+        return "(the evaluations hold no distance travelled: evaluate again)\n"
+    g = stats[(stats.traffic == "paper") & stats.duplicate_of.isna()]
+    g = g[g.radius == g.radius.max()] if len(g) else g
+    parts = []
+    for density in [d for d in ("sparse", "dense") if d in set(g.density)]:
+        here = g[g.density == density]
+        mixes = sorted(set(here.mix))
+        rule = here[here.family == "rule"].set_index("mix")
+        if rule.empty:
+            continue
+        pooled_rule = (rule.per_100km.mean(), rule.avg_speed.mean())
+        head = " | ".join(f"mix {m:g}" for m in mixes)
+        lines = [f"**{density} (n = {n_of(density)})**: collisions per 100 km at m/s; verdict "
+                 "against the rule-based ego in the same cell\n",
+                 f"| policy | {head} | pooled |", "|---|" + "---|" * (len(mixes) + 1)]  # fmt: skip
+        for (arm, family), p in here.groupby(["arm", "family"], sort=False):
+            p = p.set_index("mix")
+            cells = []
+            for m in mixes:
+                if m not in p.index:
+                    cells.append("-")
+                    continue
+                r, b = p.loc[m], rule.loc[m]
+                text = f"{r.per_100km:.1f} at {r.avg_speed:.2f}"
+                if family != "rule":
+                    text += ", " + SYMBOLS[versus_rule(r.per_100km, r.avg_speed, b.per_100km,
+                                                        b.avg_speed)]  # fmt: skip
+                cells.append(text)
+            pooled = (p.per_100km.mean(), p.avg_speed.mean())
+            pooled_text = f"{pooled[0]:.1f} at {pooled[1]:.2f}"
+            if family != "rule" and len(p) == len(mixes):
+                pooled_text += ", " + SYMBOLS[versus_rule(*pooled, *pooled_rule)]
+            lines.append(f"| {_label(arm, family)} | " + " | ".join(cells) + f" | {pooled_text} |")
+        order = sorted(lines[3:], key=lambda line: ("(baseline)" in line, line))
+        parts.append("\n".join(lines[:3] + order) + "\n")
+    return "\n".join(parts) if parts else "(no rule-based ego in the evaluations)\n"

@@ -27,7 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from bgap.agents.policies import as_policy, load_model, rollout
-from bgap.analysis.stats import t_interval, wilson_interval
+from bgap.analysis.stats import per_100km, t_interval, wilson_interval
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -207,9 +207,21 @@ def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
                 "lane_changes_hi": l_hi,
                 "return": g["return"].mean(),
                 **crash_split(g),
+                **exposure(g),
             }
         )
     return pd.DataFrame(rows)
+
+
+def exposure(episodes: pd.DataFrame) -> dict[str, float]:
+    """Kilometres driven and collisions per 100 km with their exact Poisson interval
+    (:func:`bgap.analysis.stats.per_100km`); nothing for episodes recorded without the
+    ego's distance."""
+    if "distance" not in episodes:
+        return {}
+    rate, lo, hi = per_100km(episodes.crashed.to_numpy(), episodes.distance.to_numpy(float))
+    return {"km": float(episodes.distance.sum()) / 1000, "per_100km": rate,
+            "per_100km_lo": lo, "per_100km_hi": hi}  # fmt: skip
 
 
 def crash_split(episodes: pd.DataFrame) -> dict[str, float]:
@@ -231,19 +243,24 @@ def write_results(out: Path, episodes: pd.DataFrame, summary: pd.DataFrame) -> N
 
 
 def format_table(summary: pd.DataFrame) -> str:
-    """The paper's three bars as text: collision %, speed, lane changes with 95% CIs."""
+    """The paper's three bars as text: collision %, speed, lane changes with 95% CIs, and
+    collisions per 100 km of ego travel where the episodes hold the distance."""
     split = all(f"{kind}_pct" in summary for kind in CRASH_KINDS)
+    km = "per_100km" in summary
     w = max(15, *(len(str(p)) + 1 for p in summary.policy))
     lines = [
         f"{'policy':<{w}}{'mix':>5}{'density':>9}{'radius':>8}{'episodes':>9}"
-        f"{'collisions %':>22}{'speed m/s':>20}{'lane changes':>20}"
+        f"{'collisions %':>22}"
+        + (f"{'per 100 km':>22}" if km else "")
+        + f"{'speed m/s':>20}{'lane changes':>20}"
         + ("   crashes %: rear-end / rear-ended / lane change / other" if split else "")
     ]
     for r in summary.itertuples():
         lines.append(
             f"{r.policy:<{w}}{r.mix:>5.2f}{r.density:>9}{r.radius:>8.0f}{r.episodes:>9}"
             f"{r.collision_pct:>8.1f} [{r.collision_lo:5.1f},{r.collision_hi:5.1f}]"
-            f"{r.avg_speed:>8.2f} [{r.speed_lo:5.2f},{r.speed_hi:5.2f}]"
+            + (f"{r.per_100km:>8.1f} [{r.per_100km_lo:5.1f},{r.per_100km_hi:5.1f}]" if km else "")
+            + f"{r.avg_speed:>8.2f} [{r.speed_lo:5.2f},{r.speed_hi:5.2f}]"
             f"{r.lane_changes:>8.2f} [{r.lane_changes_lo:5.2f},{r.lane_changes_hi:5.2f}]"
             + (
                 "   " + " / ".join(f"{getattr(r, f'{kind}_pct'):.0f}" for kind in CRASH_KINDS)

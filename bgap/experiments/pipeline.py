@@ -199,7 +199,9 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
         # one stage at a time, in dvc.yaml's order, on the committed presets: a stage that
         # writes a preset (the recipe's unseeded sweep) runs last, so that no other stage
         # reads a rehearsal's preset instead of the checkout's
-        for stage in sorted(stages, key=lambda s: s.split("@")[0] in LAST):
+        order = list(yaml.safe_load((tree / "dvc.yaml").read_text())["stages"])
+        for stage in sorted(stages, key=lambda s: (s.split("@")[0] in LAST,
+                                                   order.index(s.split("@")[0]))):  # fmt: skip
             cmd = [sys.executable, "-m", "dvc", "repro", "--force", "--single-item", stage]
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
@@ -342,6 +344,8 @@ def relock(
     for name, tree in trees.items():
         if (tree / REHEARSED).exists():  # a finished rehearsal of these stages, kept
             continue
+        if tree.exists():  # an interrupted rehearsal: start it again
+            shutil.rmtree(tree)
         _checkout(None if name == "head" else base, tree, root)
         print(
             f"rehearsing {', '.join(stages)} from {'the working tree' if name == 'head' else base}"

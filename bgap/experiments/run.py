@@ -19,7 +19,7 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from bgap.analysis.episodes import cell_stats, parse_policies
-from bgap.analysis.stats import beats_idle
+from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
 from bgap.common.config import app, load
 from bgap.common.runs import VOLATILE, digest, exclusive, model_file, save_run_metadata
 from bgap.common.vocab import POLICIES
@@ -93,7 +93,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
         plot_comparison(across, out / "comparison_seeds.png", f"{title}, {len(seeds)} seeds")
         print(f"\nacross {len(seeds)} training seeds (mean and 95% interval over seeds):")
         print(format_table(across))
-    for line in idle_flags(compared, cfg):
+    for line in [*idle_flags(compared, cfg), *rule_verdicts(compared)]:
         print(line)
     print(f"results in {out} ({time.perf_counter() - start:.0f} s)")
     return out
@@ -144,6 +144,35 @@ def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
             f"{r.avg_speed:.2f} m/s; idle {i.collision_pct:.1f}%, {i.avg_speed:.2f} m/s: {verdict}"
         )
     return lines
+
+
+def rule_verdicts(summary) -> list[str]:
+    """A line per trained policy and cell read against the rule-based ego on the same
+    episodes: collisions per 100 km and speed, and whether it beats the rule-based ego, is
+    beaten by it, or trades (:func:`bgap.analysis.stats.versus_rule`)."""
+    if "per_100km" not in summary or "rule" not in set(summary.policy):
+        return []
+    lines = []
+    rule = summary[summary.policy == "rule"].set_index(["mix", "density", "radius"])
+    for r in summary[summary.policy.str.contains("|".join(POLICIES))].itertuples():
+        key = (r.mix, r.density, r.radius)
+        if key not in rule.index:
+            continue
+        b = rule.loc[key]
+        verdict = versus_rule(r.per_100km, r.avg_speed, b.per_100km, b.avg_speed)
+        lines.append(
+            f"{r.policy} against the rule-based ego (mix {r.mix:g}, radius {r.radius:g}): "
+            f"{r.per_100km:.1f} collisions per 100 km at {r.avg_speed:.2f} m/s; rule "
+            f"{b.per_100km:.1f} at {b.avg_speed:.2f} m/s: {VERDICTS[verdict]}"
+        )
+    return lines
+
+
+VERDICTS = {
+    "beats": f"beats it (safer per km at >= {RULE_FLOOR:g} x its speed)",
+    "beaten": "beaten by it (no safer per km, no faster)",
+    "trades": "trades (safer but slower, or faster but less safe)",
+}
 
 
 @app(
