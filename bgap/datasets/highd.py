@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.cmetric.io import TrajectoryError, read_csv
+from bgap.cmetric.io import TrajectoryError
+from bgap.common.tables import read_csv
 from bgap.sim.recorder import COLUMNS
 
 TRACK_COLUMNS = ("frame", "id", "x", "y", "width", "height", "xVelocity", "yVelocity", "laneId")

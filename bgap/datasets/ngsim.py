@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bgap.cmetric.io import TrajectoryError, finite_difference_velocity, read_csv
+from bgap.cmetric.io import TrajectoryError, finite_difference_velocity
+from bgap.common.tables import read_csv
 from bgap.sim.recorder import COLUMNS
 
 FEET = 0.3048

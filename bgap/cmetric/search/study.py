@@ -10,10 +10,11 @@ import numpy as np
 import optuna
 import pandas as pd
 
-from bgap.cmetric.io import check_scoreable, load_trajectories, read_table
+from bgap.cmetric.io import check_scoreable, load_trajectories
 from bgap.cmetric.params import AGGREGATES, DEGREE_RULES, EVIDENCE, CMetricConfig, StyleWeights
 from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.cmetric.search.params import CMetricSearchConfig
+from bgap.common.tables import read_table
 
 SCORED = ("aggressive", "conservative")
 
