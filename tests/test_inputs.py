@@ -117,16 +117,23 @@ def test_a_run_folder_being_trained_is_refused_naming_the_process(tmp_path, monk
     assert not (tmp_path / "run" / "config.yaml").exists()  # refused before writing
 
 
-def test_the_lock_is_released_and_leaves_no_file(tmp_path):
+def test_the_lock_is_released_and_leaves_no_file_nor_an_empty_folder_it_made(tmp_path):
+    from bgap.common.errors import ConfigError
     from bgap.common.runs import LOCK, exclusive
 
+    (tmp_path / "out").mkdir()
     with exclusive(tmp_path / "out"):
         assert (tmp_path / "out" / LOCK).exists()
         with exclusive(tmp_path / "out"):  # re-entrant in one process (bgap.run, train)
             pass
-    assert list((tmp_path / "out").iterdir()) == []
-    with exclusive(tmp_path / "out"):  # and taken again
-        pass
+    assert list((tmp_path / "out").iterdir()) == []  # the user's folder stays, empty
+    # a folder the command made, then a refusal before anything was written: no trace
+    with pytest.raises(ConfigError), exclusive(tmp_path / "new"):
+        raise ConfigError("refused after the lock")
+    assert not (tmp_path / "new").exists()
+    with exclusive(tmp_path / "kept"):  # written: kept
+        (tmp_path / "kept" / "config.yaml").write_text("seed: 0\n")
+    assert (tmp_path / "kept" / "config.yaml").exists()
 
 
 def test_minus_zero_is_zero():

@@ -204,7 +204,9 @@ _HELD: dict[Path, int] = {}
 def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
     """Hold an advisory lock on ``folder`` while this process writes it. Another process
     holding it: refused in one line naming that process (``wait``: wait for it instead).
-    Re-entrant within a process (``bgap.run`` locks the run folders its trainings lock)."""
+    Re-entrant within a process (``bgap.run`` locks the run folders its trainings lock). A
+    folder this call created and left empty (the command was refused or interrupted before
+    it wrote anything) is removed again."""
     folder = Path(folder).resolve()
     if folder in _HELD:
         _HELD[folder] += 1
@@ -213,6 +215,7 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
         finally:
             _HELD[folder] -= 1
         return
+    created = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
     handle = _lock(folder / LOCK, wait)
     try:
@@ -229,6 +232,8 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
         (folder / LOCK).unlink(missing_ok=True)
         fcntl.flock(handle, fcntl.LOCK_UN)
         handle.close()
+        if created and not any(folder.iterdir()):  # refused before writing: leave no trace
+            folder.rmdir()
 
 
 def _lock(path: Path, wait: bool) -> Any:
