@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
 import subprocess
 import sys
 import time
@@ -296,6 +297,70 @@ def test_any_generated_setting_is_accepted_or_refused_with_a_config_error(values
         return
     assert 0.0 <= cfg.mix <= 1.0 and np.isfinite(cfg.env.duration) and cfg.env.duration > 0
     assert 0 <= cfg.seed <= 2**32 - 1
+
+
+COMMANDS = ("train", "evaluate", "run", "sweep", "recipe", "calibrate", "datasets",
+            "cmetric_app", "simulate")  # fmt: skip
+"""Every Hydra command's config (cmetric_search needs its tables: tests/test_bad_inputs.py)."""
+
+
+def _numeric_keys(cfg) -> list[str]:
+    from omegaconf import OmegaConf
+
+    def walk(node, prefix=""):
+        for key, value in node.items():
+            if isinstance(value, dict):
+                yield from walk(value, f"{prefix}{key}.")
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                yield f"{prefix}{key}"
+
+    return sorted(walk(OmegaConf.to_container(cfg)))
+
+
+@pytest.mark.parametrize(
+    "command,examples",
+    [*((c, 12) for c in COMMANDS),
+     *(pytest.param(c, 200, marks=pytest.mark.slow) for c in COMMANDS)],
+)  # fmt: skip
+def test_any_generated_setting_of_any_command_is_accepted_or_refused_in_one_line(command, examples):
+    """Generated combinations (12 per command; 200 under -m slow, about 40 s per command on
+    2 cores) of up to three of the command's numeric settings (every
+    int and float key of its composed config), merged as the command line merges them
+    (OmegaConf's typed merge; composing through Hydra per case costs 0.3 s): each validates,
+    with every number finite and every seed in numpy's range, or is refused with a
+    one-line ConfigError naming a setting (one of these, or the other side of a constraint
+    between two: ``sumo.length=0`` is refused as ``sumo.ego_position=2000.0 ... must lie on
+    the road``), or one of OmegaConf's known type errors."""
+    from omegaconf import OmegaConf
+
+    from bgap.common.cli import known_errors
+
+    base = compose(command, [])
+    keys = _numeric_keys(base)
+    assert len(keys) >= 5, keys
+
+    @settings(max_examples=examples, derandomize=True, deadline=None, database=None)
+    @given(st.dictionaries(st.sampled_from(keys), NUMBERS, min_size=1, max_size=3))
+    def check(values):
+        try:
+            merged = OmegaConf.merge(base, OmegaConf.from_dotlist(
+                [f"{k}={v!r}" for k, v in values.items()]))  # fmt: skip
+            cfg = validate(merged)
+        except ConfigError as err:
+            assert re.search(r"\b[a-z_][a-z0-9_.]*=", str(err)), (values, str(err))
+            assert "\n" not in str(err)
+            return
+        except Exception as err:  # noqa: BLE001 - OmegaConf's own type errors
+            assert isinstance(err, known_errors()), (values, repr(err))
+            return
+        resolved = OmegaConf.to_container(OmegaConf.structured(cfg), resolve=True)
+        for key in _numeric_keys(OmegaConf.create(resolved)):
+            value = OmegaConf.select(OmegaConf.create(resolved), key)
+            assert np.isfinite(value), (key, value)
+            if "seed" in key.split(".")[-1]:
+                assert 0 <= value <= 2**32 - 1, (key, value)
+
+    check()
 
 
 # ------------------------------------------------------------------ kill -9 and resume
