@@ -364,8 +364,8 @@ def test_any_generated_setting_of_any_command_is_accepted_or_refused_in_one_line
 
 
 # ------------------------------------------------------------------ kill -9 and resume
-def _train(run_dir: Path, learner: str, resume: bool = False) -> subprocess.Popen:
-    args = ["profile=tiny", "env=sparse", f"learner={learner}", f"run_dir={run_dir}"]
+def _train(run_dir: Path, setting: str, resume: bool = False) -> subprocess.Popen:
+    args = ["profile=tiny", "env=sparse", setting, f"run_dir={run_dir}"]
     return subprocess.Popen(
         [sys.executable, "-m", "bgap.train", *args, *(["resume=true"] if resume else [])],
         cwd=run_dir.parent, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
@@ -379,16 +379,21 @@ def _weights(run_dir: Path) -> bytes:
         return archive.read("policy.pth")
 
 
+TRAININGS = ("learner=sb3", "learner=batched", "agent=qrdqn", "agent=ppo")
+"""Both learners (DQN), and the SB3 learner's other algorithms."""
+
+
 @pytest.mark.parametrize(
     "learner,kills",
-    [("sb3", 2), ("batched", 2), *(pytest.param(learner, 20, marks=pytest.mark.slow)
-                                   for learner in ("sb3", "batched"))],
+    [("learner=sb3", 2), ("learner=batched", 2), ("agent=qrdqn", 1), ("agent=ppo", 1),
+     *(pytest.param(t, 20, marks=pytest.mark.slow) for t in TRAININGS)],
 )  # fmt: skip
 def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters(
     tmp_path, learner, kills
 ):
     """A training killed with SIGKILL at a random moment (checkpoint writes included), then
-    continued with resume=true, ends with the weights of a training never interrupted."""
+    continued with resume=true, ends with the weights of a training never interrupted
+    (DQN on both learners, QR-DQN and PPO on SB3's)."""
     whole = tmp_path / "whole"
     start = time.perf_counter()
     assert _train(whole, learner).wait(timeout=600) == 0

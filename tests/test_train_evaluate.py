@@ -201,13 +201,15 @@ def _interrupted_then_resumed(cfg, monkeypatch, at: int):
     assert not (run / "model.zip").exists()
     monkeypatch.setattr(SB3Monitor, "_on_step", original)
     started = []
-    learn = train_mod.DQN.learn
+    from bgap.agents.dqn import DQN
+
+    learn = DQN.learn
 
     def spy(self, *args, **kwargs):
         started.append((self.num_timesteps, kwargs["total_timesteps"]))
         return learn(self, *args, **kwargs)
 
-    monkeypatch.setattr(train_mod.DQN, "learn", spy)
+    monkeypatch.setattr(DQN, "learn", spy)
     train_mod.train(replace(cfg, resume=True), progress=False)
     return state, started
 

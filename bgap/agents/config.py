@@ -1,4 +1,4 @@
-"""The ``agent`` config group's schema: DQN hyperparameters."""
+"""The ``agent`` config group's schema: the learning algorithm and its hyperparameters."""
 
 from __future__ import annotations
 
@@ -6,13 +6,21 @@ from dataclasses import dataclass, field
 
 from bgap.common.errors import check
 
+ALGOS = ("dqn", "qrdqn", "ppo")
+"""Learning algorithms: bgap's DQN (SB3's, with the paper's loss, schedules and prioritized
+replay), QR-DQN (sb3-contrib's, with the same replay and schedules) and SB3's PPO."""
+
 
 @dataclass
 class AgentConfig:
-    """DQN hyperparameters (config group ``agent``). Defaults: the paper and the authors'
-    rl-agents configuration (FACTS.md)."""
+    """The algorithm and its hyperparameters (config group ``agent``: one preset per
+    algorithm and recipe). Defaults: DQN as in the paper and the authors' rl-agents
+    configuration (FACTS.md)."""
 
     name: str = "dqn"
+    algo: str = "dqn"
+    """``dqn``, ``qrdqn`` or ``ppo`` (:data:`ALGOS`); the presets ``agent=qrdqn`` and
+    ``agent=ppo`` set it with hyperparameters of their own."""
     net_arch: list[int] = field(default_factory=lambda: [256, 256])
     learning_rate: float = 5e-4
     loss: str = "mse"
@@ -37,9 +45,31 @@ class AgentConfig:
     refuse it unless ``agent.converged=true`` says it is used knowingly."""
     per_alpha: float = 0.6
     per_beta0: float = 0.4
+    n_quantiles: int = 25
+    """QR-DQN: quantiles of each action's return distribution."""
+    n_steps: int = 128
+    """PPO: steps per environment between updates (a rollout of n_steps x environments)."""
+    n_epochs: int = 10
+    """PPO: passes over each rollout."""
+    gae_lambda: float = 0.95
+    """PPO: the advantage estimate's lambda."""
+    clip_range: float = 0.2
+    """PPO: the policy ratio's clip."""
+    ent_coef: float = 0.0
+    """PPO: weight of the entropy bonus."""
+    vf_coef: float = 0.5
+    """PPO: weight of the value loss."""
 
     def __post_init__(self) -> None:
+        check(self.algo in ALGOS, "agent.algo", self.algo, f"use one of {', '.join(ALGOS)}")
         check(self.loss in ("mse", "huber"), "agent.loss", self.loss, "use mse or huber")
+        check(self.n_quantiles >= 1, "agent.n_quantiles", self.n_quantiles, "must be >= 1")
+        check(self.n_steps >= 2, "agent.n_steps", self.n_steps, "must be >= 2")
+        check(self.n_epochs >= 1, "agent.n_epochs", self.n_epochs, "must be >= 1")
+        check(0 <= self.gae_lambda <= 1, "agent.gae_lambda", self.gae_lambda, "must lie in [0, 1]")
+        check(self.clip_range > 0, "agent.clip_range", self.clip_range, "must be > 0")
+        check(self.ent_coef >= 0, "agent.ent_coef", self.ent_coef, "must be >= 0")
+        check(self.vf_coef >= 0, "agent.vf_coef", self.vf_coef, "must be >= 0")
         check(self.replay in ("per", "uniform"), "agent.replay", self.replay, "use per or uniform")
         check(0 < self.gamma <= 1, "agent.gamma", self.gamma, "must lie in (0, 1]")
         check(self.learning_rate > 0, "agent.learning_rate", self.learning_rate, "must be > 0")

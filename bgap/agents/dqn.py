@@ -18,6 +18,30 @@ from stable_baselines3 import DQN as SB3DQN
 from bgap.agents.per import PrioritizedReplayBuffer, PrioritizedSamples
 
 
+def exponential_epsilon(model: Any) -> None:
+    """The authors' schedule, where ``model.exploration_decay_steps`` is set (replacing the
+    linear one that SB3's ``_on_step`` has just applied): epsilon = final + (initial -
+    final) exp(-t / decay_steps), t the environment steps."""
+    if model.exploration_decay_steps:
+        decay = math.exp(-model.num_timesteps / model.exploration_decay_steps)
+        model.exploration_rate = (
+            model.exploration_final_eps
+            + (model.exploration_initial_eps - model.exploration_final_eps) * decay
+        )
+        model.logger.record("rollout/exploration_rate", model.exploration_rate)
+
+
+def anneal_beta(model: Any) -> bool:
+    """Move a prioritized buffer's exponent beta towards 1 over ``model.per_beta_steps``;
+    whether the model's buffer is prioritized."""
+    buffer = model.replay_buffer
+    if not isinstance(buffer, PrioritizedReplayBuffer):
+        return False
+    frac = min(1.0, model.num_timesteps / max(1, model.per_beta_steps))
+    buffer.beta = buffer.beta0 + frac * (1.0 - buffer.beta0)
+    return True
+
+
 class DQN(SB3DQN):
     """:param loss: ``"mse"`` (the paper) or ``"huber"`` (SB3's default)
     :param exploration_decay_steps: if set, epsilon = final + (initial - final) *
@@ -43,13 +67,7 @@ class DQN(SB3DQN):
 
     def _on_step(self) -> None:
         super()._on_step()
-        if self.exploration_decay_steps:
-            decay = math.exp(-self.num_timesteps / self.exploration_decay_steps)
-            self.exploration_rate = (
-                self.exploration_final_eps
-                + (self.exploration_initial_eps - self.exploration_final_eps) * decay
-            )
-            self.logger.record("rollout/exploration_rate", self.exploration_rate)
+        exponential_epsilon(self)
 
     def td_loss(
         self, current: th.Tensor, target: th.Tensor, weights: th.Tensor | None = None
@@ -67,10 +85,7 @@ class DQN(SB3DQN):
         self.policy.set_training_mode(True)
         self._update_learning_rate(self.policy.optimizer)
         buffer = self.replay_buffer
-        prioritized = isinstance(buffer, PrioritizedReplayBuffer)
-        if prioritized:
-            frac = min(1.0, self.num_timesteps / max(1, self.per_beta_steps))
-            buffer.beta = buffer.beta0 + frac * (1.0 - buffer.beta0)
+        prioritized = anneal_beta(self)
         losses = []
         for _ in range(gradient_steps):
             data = buffer.sample(batch_size, env=self._vec_normalize_env)

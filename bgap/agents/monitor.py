@@ -313,10 +313,11 @@ class SB3Monitor(BaseCallback):
         )
 
     def checkpoint(self) -> None:
-        """Model, replay buffer and state, as they are now."""
+        """Model, replay buffer (off-policy algorithms; PPO checkpoints between rollouts,
+        where it holds none) and state, as they are now."""
         self.monitor.state["steps"] = int(self.model.num_timesteps)
-        self.monitor.checkpoint(
-            {"model.zip": self.model.save, "replay.pkl": self.model.save_replay_buffer},
-            self.extra_state(),
-        )
+        save = {"model.zip": self.model.save}
+        if hasattr(self.model, "save_replay_buffer"):
+            save["replay.pkl"] = self.model.save_replay_buffer
+        self.monitor.checkpoint(save, self.extra_state())
         self._last_ckpt = self.saved_at = self.num_timesteps

@@ -1,8 +1,8 @@
 """Policies by name or file: the scripted baselines and saved models of any SB3 algorithm.
 
 A policy spec is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``); the path
-of a saved Stable-Baselines3 model (``model.zip`` or its run folder; DQN, PPO, A2C, SAC and
-TD3 are recognised from the file, or named as ``ppo:path``) or a loaded model, played
+of a saved Stable-Baselines3 model (``model.zip`` or its run folder; DQN, QR-DQN, PPO, A2C,
+SAC and TD3 are recognised from the file, or named as ``ppo:path``) or a loaded model, played
 greedily; or a callable (:func:`bgap.sim.rollout.as_callable`). :func:`rollout` plays any
 spec on seeded episodes through the simulators' one rollout loop.
 """
@@ -57,6 +57,7 @@ def model_path(spec: str | Path) -> Path:
 # Stable-Baselines3 stores no algorithm name in a model file; each algorithm's own saved
 # attributes tell them apart (A2C's and PPO's policies are the same class).
 _ALGORITHM_KEYS = (
+    ("qrdqn", "n_quantiles"),  # before dqn: QR-DQN saves target_update_interval too
     ("dqn", "target_update_interval"),
     ("ppo", "n_epochs"),
     ("a2c", "n_steps"),
@@ -75,18 +76,27 @@ def load_model(spec: str | Path) -> Any:
 
     from bgap.agents.dqn import DQN
 
-    classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3}
+    classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3,
+               "qrdqn": _qrdqn}  # fmt: skip
     algo, _, rest = str(spec).partition(":")
     named = bool(rest) and algo.lower() in classes
     path = model_path(rest if named else spec)
 
     def load() -> Any:
         name = algo.lower() if named else _algorithm_of(path)
-        return classes[name].load(path, device="cpu")
+        cls = classes[name]() if name == "qrdqn" else classes[name]
+        return cls.load(path, device="cpu")
 
     return read_or_refuse(
         load, f"{path} is not a readable model", "give a model.zip saved by bgap.train or SB3"
     )
+
+
+def _qrdqn() -> type:
+    # Imported here: sb3-contrib loads only for QR-DQN models.
+    from bgap.agents.qrdqn import QRDQN
+
+    return QRDQN
 
 
 def _algorithm_of(path: Path) -> str:

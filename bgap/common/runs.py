@@ -87,6 +87,14 @@ ADDED_LATER = {
 }
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""
+ADDED_WITH_ALGOS = {
+    "algo": "dqn", "n_quantiles": 25, "n_steps": 128, "n_epochs": 10, "gae_lambda": 0.95,
+    "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5,
+}  # fmt: skip
+"""The ``agent`` settings that came with the algorithms beside DQN, at the values every
+earlier training had: read into configs saved before them, and left out of a training's
+identity at these values (its run folder keeps its name)."""
+ADDED_LATER |= {f"agent.{k}": v for k, v in ADDED_WITH_ALGOS.items()}
 
 
 def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATILE) -> list[str]:
@@ -98,9 +106,10 @@ def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATI
 
 DAMAGED = (
     pickle.UnpicklingError, EOFError, zipfile.BadZipFile, KeyError, ValueError, OSError,
-    RuntimeError,
+    RuntimeError, AttributeError,
 )  # fmt: skip
-"""What reading a truncated or corrupt model or checkpoint raises (pickle, zip, torch)."""
+"""What reading a truncated or corrupt model or checkpoint raises (pickle, zip, torch; a
+model read as another algorithm's: AttributeError)."""
 
 
 def read_or_refuse(read: Callable[[], T], what: str, fix: str) -> T:

@@ -158,6 +158,12 @@ class ExperimentConfig(BaseConfig):
             check(b in BASELINES, "baselines", self.baselines, f"each one of {BASELINES}")
         check(self.workers >= 1, "workers", self.workers, "must be >= 1")
         check(self.learner in LEARNERS, "learner", self.learner, f"use one of {LEARNERS}")
+        check(
+            self.learner == "sb3" or self.agent.algo == "dqn",
+            "learner",
+            self.learner,
+            f"trains DQN only; agent.algo={self.agent.algo} trains with learner=sb3",
+        )
         check(self.threads >= 0, "threads", self.threads, "must be >= 0 (0: one per core)")
         for p in self.policies:
             check(p in POLICIES, "policies", self.policies, f"each one of {POLICIES}")

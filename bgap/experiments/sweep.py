@@ -32,8 +32,7 @@ from omegaconf import DictConfig
 from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.agents.dqn import DQN
-from bgap.agents.policies import baseline, greedy, rollout
+from bgap.agents.policies import baseline, greedy, load_model, rollout
 from bgap.analysis.stats import constrained_score
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
@@ -183,7 +182,7 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
         every = cfg.prune_every or max(tcfg.profile.train_steps // 4, 1)
         callbacks.append(PruneCallback(trial, tcfg, every, score))
     train(tcfg, progress=False, callbacks=callbacks)
-    model = DQN.load(run_dir / "model.zip", device="cpu")
+    model = load_model(run_dir / "model.zip")  # of the trial's algorithm (agent.algo)
     crash, speed = evaluate_model(model, tcfg, cfg.sweep_eval_episodes)
     idle_crash, idle_speed = _validation(baseline("idle"), tcfg, cfg.sweep_eval_episodes)
     for key, value in (

@@ -29,7 +29,6 @@ from omegaconf import DictConfig
 from stable_baselines3.common.vec_env import VecMonitor
 from tqdm import TqdmExperimentalWarning
 
-from bgap.agents.dqn import DQN
 from bgap.agents.monitor import (
     SB3Monitor,
     TrainingMonitor,
@@ -43,6 +42,7 @@ from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
     build_model,
     member_configs,
+    model_class,
     open_run_dir,
     read_checkpoint,
     run_dir_for,
@@ -70,7 +70,7 @@ def _vector_highway(env: VecMonitor) -> VectorHighway | None:
     return inner if isinstance(inner, VectorHighway) else None
 
 
-def resume_state(model: DQN, env: Any) -> dict[str, Any]:
+def resume_state(model: Any, env: Any) -> dict[str, Any]:
     """What an exact resume needs beyond the model and replay buffer: the environments
     (vector backend), the global random streams (PER sampling, epsilon draws) and the action
     space's (exploratory actions), which SB3 reseeds when it loads a model."""
@@ -119,7 +119,7 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
         exact = venv is not None and state["env"] is not None
         model = read_checkpoint(
             ckpt,
-            lambda: DQN.load(
+            lambda: model_class(cfg.agent.algo).load(
                 ckpt / "model.zip",
                 env=env,
                 device="cpu",
@@ -127,7 +127,8 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
                 force_reset=not exact,
             ),
         )
-        read_checkpoint(ckpt, lambda: model.load_replay_buffer(ckpt / "replay.pkl"))
+        if cfg.agent.algo != "ppo":  # on-policy: a rollout starts afresh, no buffer kept
+            read_checkpoint(ckpt, lambda: model.load_replay_buffer(ckpt / "replay.pkl"))
         monitor.restore(state)
         if exact:
             venv.load_state_dict(state["env"])
@@ -152,7 +153,7 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
                     callback=[callback, *callbacks],
                     progress_bar=progress,
                     reset_num_timesteps=not resuming,
-                    tb_log_name="dqn",
+                    tb_log_name=cfg.agent.algo,
                 )
     except KeyboardInterrupt:
         saved = callback.saved_at

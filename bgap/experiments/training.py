@@ -8,6 +8,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, TypeVar
 
+import torch
 from omegaconf import OmegaConf
 
 from bgap.agents.dqn import DQN
@@ -16,7 +17,7 @@ from bgap.agents.monitor import (
 )
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.common.errors import ConfigError
-from bgap.common.runs import VOLATILE, digest, read_or_refuse, save_run_metadata
+from bgap.common.runs import ADDED_WITH_ALGOS, VOLATILE, digest, read_or_refuse, save_run_metadata
 from bgap.experiments.config import ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
@@ -56,6 +57,9 @@ def training_identity(cfg: ExperimentConfig) -> dict[str, Any]:
             "backend",
         )
     }
+    # settings added later, at the value every earlier training had, leave its name as it was
+    keys["agent"] = {k: v for k, v in keys["agent"].items()
+                     if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
     keys["mix"] = cfg.mix if cfg.policy == "behavior_rich" else None
     if cfg.learner != "sb3":  # (the SB3 runs' names predate this setting)
         keys["learner"] = cfg.learner
@@ -78,34 +82,57 @@ def run_dir_for(cfg: ExperimentConfig) -> Path:
     return Path(cfg.run_dir) if cfg.run_dir else Path(cfg.root) / "runs" / run_name(cfg)
 
 
-def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> DQN:
+def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
+    """The SB3 model of ``cfg.agent.algo`` (:func:`model_class`), the agent's hyperparameters."""
     a = cfg.agent
+    common = dict(
+        env=env, learning_rate=a.learning_rate, gamma=a.gamma, max_grad_norm=a.max_grad_norm,
+        tensorboard_log=str(tb_dir), seed=cfg.seed, device="cpu", verbose=0,
+    )  # fmt: skip
+    if a.algo == "ppo":
+        return model_class("ppo")(
+            "MlpPolicy", n_steps=a.n_steps, batch_size=a.batch_size, n_epochs=a.n_epochs,
+            gae_lambda=a.gae_lambda, clip_range=a.clip_range, ent_coef=a.ent_coef,
+            vf_coef=a.vf_coef, policy_kwargs={"net_arch": list(a.net_arch)}, **common,
+        )  # fmt: skip
     per = a.replay == "per"
-    return DQN(
-        "MlpPolicy",
-        env,
-        learning_rate=a.learning_rate,
+    off_policy = dict(
         buffer_size=a.buffer_size,
         learning_starts=a.learning_starts,
         batch_size=a.batch_size,
-        gamma=a.gamma,
         train_freq=a.train_freq,
         gradient_steps=a.gradient_steps,
         target_update_interval=a.target_update_interval,
         exploration_initial_eps=a.exploration_initial,
         exploration_final_eps=a.exploration_final,
         exploration_decay_steps=cfg.profile.exploration_decay_steps or a.exploration_decay_steps,
-        max_grad_norm=a.max_grad_norm,
         replay_buffer_class=PrioritizedReplayBuffer if per else None,
         replay_buffer_kwargs={"alpha": a.per_alpha, "beta0": a.per_beta0} if per else None,
         per_beta_steps=cfg.profile.train_steps,
-        loss=a.loss,
-        policy_kwargs={"net_arch": list(a.net_arch)},
-        tensorboard_log=str(tb_dir),
-        seed=cfg.seed,
-        device="cpu",
-        verbose=0,
     )
+    if a.algo == "qrdqn":
+        # torch's Adam as DQN's (sb3-contrib would otherwise set its Atari epsilon)
+        kwargs = {"net_arch": list(a.net_arch), "n_quantiles": a.n_quantiles,
+                  "optimizer_class": torch.optim.Adam}  # fmt: skip
+        return model_class("qrdqn")("MlpPolicy", policy_kwargs=kwargs, **off_policy, **common)
+    return DQN(
+        "MlpPolicy", loss=a.loss, policy_kwargs={"net_arch": list(a.net_arch)}, **off_policy,
+        **common,
+    )  # fmt: skip
+
+
+def model_class(algo: str) -> type:
+    """The class a training of ``algo`` builds, saves and resumes as."""
+    if algo == "qrdqn":
+        # Imported here: sb3-contrib loads only for the trainings that use it.
+        from bgap.agents.qrdqn import QRDQN
+
+        return QRDQN
+    if algo == "ppo":
+        from stable_baselines3 import PPO
+
+        return PPO
+    return DQN
 
 
 def open_run_dir(cfg: ExperimentConfig, run_dir: Path | None = None) -> tuple[Path, str]:

@@ -1,0 +1,78 @@
+"""The learners beside DQN (issue 32): QR-DQN (sb3-contrib) and PPO (SB3) through bgap's
+training, saving, loading and evaluation; resuming a killed training: tests/test_inputs.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch as th
+
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError
+from tests.configs import compose
+
+
+def test_the_per_sample_quantile_loss_averages_to_sb3_contribs():
+    """bgap's per-sample quantile Huber loss (needed for importance weights) against
+    sb3-contrib's batch loss: their mean over the batch is the library's number, for equal
+    and unequal numbers of current and target quantiles, and kappa = 1."""
+    from sb3_contrib.common.utils import quantile_huber_loss
+
+    from bgap.agents.qrdqn import quantile_huber_per_sample
+
+    gen = th.Generator().manual_seed(0)
+    for n, m in ((11, 11), (25, 7)):
+        current, target = th.randn(16, n, generator=gen), 3 * th.randn(16, m, generator=gen)
+        per_sample = quantile_huber_per_sample(current, target)
+        assert per_sample.shape == (16,)
+        want = quantile_huber_loss(current, target, sum_over_quantiles=True)
+        assert th.allclose(per_sample.mean(), want, rtol=1e-6)
+
+
+@pytest.mark.parametrize("algo,cls", [("qrdqn", "QRDQN"), ("ppo", "PPO")])
+def test_each_algorithm_trains_saves_loads_and_is_evaluated(tmp_path, algo, cls):
+    """``agent=<algo>`` at the tiny profile: a run folder with model.zip and its TensorBoard
+    log under the algorithm's name; the model loads as its own class (recognised from the
+    file) and plays the same seeded episodes twice alike."""
+    from bgap.agents.policies import load_model
+    from bgap.experiments.evaluate import Cell, evaluate
+    from bgap.experiments.train import train
+    from bgap.experiments.training import run_name
+
+    cfg = validate(compose("train", [f"agent={algo}", "profile=tiny", "env=sparse",
+                                     f"root={tmp_path}"]))  # fmt: skip
+    dqn = validate(compose("train", ["profile=tiny", "env=sparse", f"root={tmp_path}"]))
+    assert run_name(cfg) != run_name(dqn)  # another training, another folder
+    run = train(cfg, progress=False)
+    assert (run / "model.zip").exists() and any((run / "tb").glob(f"{algo}_*"))
+    model = load_model(run / "model.zip")
+    assert type(model).__name__ == cls
+    cells = [Cell(0.5, "sparse", 180.0)]
+    first = evaluate(cfg, {"m": str(run)}, cells, episodes=3, progress=False)
+    again = evaluate(cfg, {"m": str(run)}, cells, episodes=3, progress=False)
+    assert len(first) == 3 and first.equals(again)
+    assert np.isfinite(first.avg_speed).all()
+
+
+def test_the_batched_learner_refuses_other_algorithms_and_names_are_kept():
+    """learner=batched is DQN's alone (one line naming the way out); a DQN training's run
+    folder keeps the name it had before the algorithms' settings existed."""
+    from bgap.experiments.training import training_identity
+
+    with pytest.raises(ConfigError, match="trains DQN only; agent.algo=ppo trains with learner"):
+        validate(compose("train", ["agent=ppo", "learner=batched"]))
+    identity = training_identity(validate(compose("train", ["profile=tiny"])))
+    assert "algo" not in identity["agent"] and "n_quantiles" not in identity["agent"]
+
+
+def test_a_model_read_as_another_algorithm_is_one_line(tmp_path):
+    """A QR-DQN file named as DQN's (``dqn:path``) is refused in one line, not a traceback."""
+    from bgap.agents.policies import load_model
+    from bgap.experiments.train import train
+
+    cfg = validate(compose("train", ["agent=qrdqn", "profile=tiny", "profile.train_steps=60",
+                                     "env=sparse", f"root={tmp_path}"]))  # fmt: skip
+    run = train(cfg, progress=False)
+    with pytest.raises(ConfigError, match="is not a readable model") as err:
+        load_model(f"dqn:{run / 'model.zip'}")
+    assert "\n" not in str(err.value)
