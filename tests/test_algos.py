@@ -76,3 +76,63 @@ def test_a_model_read_as_another_algorithm_is_one_line(tmp_path):
     with pytest.raises(ConfigError, match="is not a readable model") as err:
         load_model(f"dqn:{run / 'model.zip'}")
     assert "\n" not in str(err.value)
+
+
+def _observations(rows: int = 8, batch: int = 6, present: int = 5) -> th.Tensor:
+    """bgap's layout: presence first, the ego in row 0, ``present`` - 1 others, then absent
+    rows of zeros."""
+    gen = th.Generator().manual_seed(1)
+    obs = th.rand(batch, rows, 5, generator=gen) * 2 - 1
+    obs[:, :, 0] = 1.0
+    obs[:, present:] = 0.0
+    return obs
+
+
+def test_ego_attention_reads_the_other_vehicles_as_a_set_and_ignores_absent_rows():
+    """Any order of rows 1..V-1 (absent rows moved among them too) gives the same features;
+    anything written into absent rows changes nothing; an ego alone gives finite features;
+    moving a present vehicle, or swapping the ego with another row, changes them."""
+    import gymnasium as gym
+
+    from bgap.agents.attention import EgoAttention
+
+    th.manual_seed(0)
+    extractor = EgoAttention(gym.spaces.Box(-1, 1, (8, 5)), embed_dim=16, heads=2).eval()
+    obs = _observations()
+    base = extractor(obs)
+    for seed in range(5):
+        perm = th.randperm(7, generator=th.Generator().manual_seed(seed)) + 1
+        shuffled = obs[:, th.cat([th.tensor([0]), perm])]
+        assert th.allclose(extractor(shuffled), base, atol=1e-6)
+    garbage = obs.clone()
+    garbage[:, 5:, 1:] = th.rand(6, 3, 4) * 5  # features of absent rows (presence stays 0)
+    assert th.allclose(extractor(garbage), base, atol=1e-6)
+    alone = obs.clone()
+    alone[:, 1:] = 0.0
+    assert th.isfinite(extractor(alone)).all()
+    moved = obs.clone()
+    moved[:, 2, 1] += 0.3
+    assert not th.allclose(extractor(moved), base, atol=1e-4)
+    swapped = obs[:, [1, 0, 2, 3, 4, 5, 6, 7]]
+    assert not th.allclose(extractor(swapped), base, atol=1e-4)
+
+
+@pytest.mark.parametrize("algo", ["dqn", "ppo"])
+def test_an_attention_network_trains_and_loads_with_its_extractor(tmp_path, algo):
+    """``agent.extractor=attention``: the policy's features extractor is ego attention; the
+    saved model loads and acts as the trained one; the batched learner refuses it."""
+    from bgap.agents.attention import EgoAttention
+    from bgap.agents.policies import load_model
+    from bgap.experiments.train import train
+
+    overrides = [f"agent={algo}", "agent.extractor=attention", "agent.attention_dim=16",
+                 "profile=tiny", "env=sparse", f"root={tmp_path}"]  # fmt: skip
+    run = train(validate(compose("train", overrides)), progress=False)
+    model = load_model(run / "model.zip")
+    assert any(isinstance(m, EgoAttention) for m in model.policy.modules())
+    obs = _observations(rows=5, batch=4).numpy()
+    assert (model.predict(obs, deterministic=True)[0] == load_model(run).predict(
+        obs, deterministic=True)[0]).all()  # fmt: skip
+    refusal = "stacks plain MLPs only" if algo == "dqn" else "trains DQN only"
+    with pytest.raises(ConfigError, match=refusal):
+        validate(compose("train", [*overrides, "learner=batched"]))

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from bgap.common.errors import check
 
 ALGOS = ("dqn", "qrdqn", "ppo")
+EXTRACTORS = ("flatten", "attention")
 """Learning algorithms: bgap's DQN (SB3's, with the paper's loss, schedules and prioritized
 replay), QR-DQN (sb3-contrib's, with the same replay and schedules) and SB3's PPO."""
 
@@ -45,6 +46,14 @@ class AgentConfig:
     refuse it unless ``agent.converged=true`` says it is used knowingly."""
     per_alpha: float = 0.6
     per_beta0: float = 0.4
+    extractor: str = "flatten"
+    """What the networks read: ``flatten`` (the observation as one vector, the paper's MLP)
+    or ``attention`` (ego attention over the observed vehicles, :mod:`bgap.agents.attention`;
+    ``net_arch`` then follows it)."""
+    attention_dim: int = 64
+    """``extractor=attention``: width of the embeddings and of the features."""
+    attention_heads: int = 2
+    """``extractor=attention``: attention heads (must divide ``attention_dim``)."""
     n_quantiles: int = 25
     """QR-DQN: quantiles of each action's return distribution."""
     n_steps: int = 128
@@ -63,6 +72,11 @@ class AgentConfig:
     def __post_init__(self) -> None:
         check(self.algo in ALGOS, "agent.algo", self.algo, f"use one of {', '.join(ALGOS)}")
         check(self.loss in ("mse", "huber"), "agent.loss", self.loss, "use mse or huber")
+        check(self.extractor in EXTRACTORS, "agent.extractor", self.extractor,
+              f"use one of {', '.join(EXTRACTORS)}")  # fmt: skip
+        check(self.attention_heads >= 1 and self.attention_dim % self.attention_heads == 0,
+              "agent.attention_heads", self.attention_heads,
+              f"must be >= 1 and divide agent.attention_dim={self.attention_dim}")  # fmt: skip
         check(self.n_quantiles >= 1, "agent.n_quantiles", self.n_quantiles, "must be >= 1")
         check(self.n_steps >= 2, "agent.n_steps", self.n_steps, "must be >= 2")
         check(self.n_epochs >= 1, "agent.n_epochs", self.n_epochs, "must be >= 1")

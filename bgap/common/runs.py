@@ -88,7 +88,8 @@ ADDED_LATER = {
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""
 ADDED_WITH_ALGOS = {
-    "algo": "dqn", "n_quantiles": 25, "n_steps": 128, "n_epochs": 10, "gae_lambda": 0.95,
+    "algo": "dqn", "extractor": "flatten", "attention_dim": 64, "attention_heads": 2,
+    "n_quantiles": 25, "n_steps": 128, "n_epochs": 10, "gae_lambda": 0.95,
     "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5,
 }  # fmt: skip
 """The ``agent`` settings that came with the algorithms beside DQN, at the values every

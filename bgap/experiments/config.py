@@ -164,6 +164,12 @@ class ExperimentConfig(BaseConfig):
             self.learner,
             f"trains DQN only; agent.algo={self.agent.algo} trains with learner=sb3",
         )
+        check(
+            self.learner == "sb3" or self.agent.extractor == "flatten",
+            "learner",
+            self.learner,
+            "stacks plain MLPs only; agent.extractor=attention trains with learner=sb3",
+        )
         check(self.threads >= 0, "threads", self.threads, "must be >= 0 (0: one per core)")
         for p in self.policies:
             check(p in POLICIES, "policies", self.policies, f"each one of {POLICIES}")

@@ -11,6 +11,7 @@ from typing import Any, TypeVar
 import torch
 from omegaconf import OmegaConf
 
+from bgap.agents.attention import EgoAttention
 from bgap.agents.dqn import DQN
 from bgap.agents.monitor import (
     recover_checkpoint,
@@ -85,6 +86,10 @@ def run_dir_for(cfg: ExperimentConfig) -> Path:
 def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
     """The SB3 model of ``cfg.agent.algo`` (:func:`model_class`), the agent's hyperparameters."""
     a = cfg.agent
+    network = {"net_arch": list(a.net_arch)}
+    if a.extractor == "attention":
+        network |= {"features_extractor_class": EgoAttention, "features_extractor_kwargs":
+                    {"embed_dim": a.attention_dim, "heads": a.attention_heads}}  # fmt: skip
     common = dict(
         env=env, learning_rate=a.learning_rate, gamma=a.gamma, max_grad_norm=a.max_grad_norm,
         tensorboard_log=str(tb_dir), seed=cfg.seed, device="cpu", verbose=0,
@@ -93,7 +98,7 @@ def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
         return model_class("ppo")(
             "MlpPolicy", n_steps=a.n_steps, batch_size=a.batch_size, n_epochs=a.n_epochs,
             gae_lambda=a.gae_lambda, clip_range=a.clip_range, ent_coef=a.ent_coef,
-            vf_coef=a.vf_coef, policy_kwargs={"net_arch": list(a.net_arch)}, **common,
+            vf_coef=a.vf_coef, policy_kwargs=network, **common,
         )  # fmt: skip
     per = a.replay == "per"
     off_policy = dict(
@@ -112,11 +117,10 @@ def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
     )
     if a.algo == "qrdqn":
         # torch's Adam as DQN's (sb3-contrib would otherwise set its Atari epsilon)
-        kwargs = {"net_arch": list(a.net_arch), "n_quantiles": a.n_quantiles,
-                  "optimizer_class": torch.optim.Adam}  # fmt: skip
+        kwargs = {**network, "n_quantiles": a.n_quantiles, "optimizer_class": torch.optim.Adam}
         return model_class("qrdqn")("MlpPolicy", policy_kwargs=kwargs, **off_policy, **common)
     return DQN(
-        "MlpPolicy", loss=a.loss, policy_kwargs={"net_arch": list(a.net_arch)}, **off_policy,
+        "MlpPolicy", loss=a.loss, policy_kwargs=network, **off_policy,
         **common,
     )  # fmt: skip
 
