@@ -48,6 +48,8 @@ def _tables(folder: Path) -> None:
     ids["track_id"] = ids["id"]
     ids.to_csv(folder / "both_ids.csv", index=False)
     (folder / "notes.txt").write_text("not a table")
+    (folder / "evaluation").mkdir(exist_ok=True)
+    (folder / "evaluation" / "episodes.parquet").write_bytes(b"PAR1 truncated")
     one_class = good.assign(label="aggressive", lane=0)
     one_class.to_csv(folder / "one_class.csv", index=False)
     # defective files (issue 34): cut short, of another encoding, ragged, not a model
@@ -166,6 +168,9 @@ CASES = [
     ("cmetric", ["input={tmp}/both_ids.csv"], r"columns \['vehicle_id'\] are given twice"),
     ("cmetric", ["input={tmp}/good.csv", "fps=0"], r"fps=0\.0 is invalid"),
     ("cmetric", ["input={tmp}/good.csv", "cmetric.window=0"], r"cmetric\.window=0\.0"),
+    # --- figures: evaluation folders that hold no episodes, or damaged ones
+    ("figures", ["{tmp}/nothing"], r"no evaluation episodes in .*nothing: run bgap.evaluate"),
+    ("figures", ["{tmp}/evaluation"], r"episodes.parquet cannot be read as Parquet"),
     # --- parity: the fast mode's rows would replace the parity stage's own
     (
         "parity",
@@ -184,6 +189,7 @@ MODULES = {
     "cmetric": "bgap.cmetric.__main__",
     "parity": "bgap.parity",
     "bench": "bgap.bench",
+    "figures": "bgap.figures",
 }
 
 

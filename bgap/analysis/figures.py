@@ -34,7 +34,7 @@ from __future__ import annotations
 import argparse
 
 from bgap.analysis.plots import make_figures
-from bgap.common.cli import OneLineParser
+from bgap.common.cli import OneLineParser, run
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -54,7 +54,12 @@ def main(argv: list[str] | None = None) -> None:
         help="where figures and tables go (the pipeline: results)",
     )
     args = parser.parse_args(argv)
-    for name, path in make_figures(args.evaluations, args.out, args.stock).items():
+    paths = run(
+        "bgap.figures",
+        lambda: make_figures(args.evaluations, args.out, args.stock),
+        f"the files written so far are in {args.out}; rerun the command",
+    )
+    for name, path in paths.items():
         print(f"{name}: {path}")
 
 
