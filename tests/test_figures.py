@@ -161,6 +161,7 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
         *episodes("main/dense/dense-default-s{s}", 1, 20.0),
         *episodes("authors/dense/dense-behavior_rich-s{s}", 6, 27.0),
         *episodes("rule", 4, 28.5, seeds=(0,)), *episodes("idle", 10, 25.0, seeds=(0,)),
+        *episodes("random", 30, 22.0, seeds=(0,)),
     ], ignore_index=True))  # fmt: skip
     df["traffic"] = "paper"
     stats, _ = cell_stats(df)

@@ -179,6 +179,8 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
             for _, s in here.iterrows():
                 style = {"rule": dict(marker="*", ms=11, color="k"),
                          "idle": dict(marker="s", ms=6, color="0.5")}.get(s.family)  # fmt: skip
+                if style is None and (s.arm, s.family) not in colors:  # random, left
+                    continue
                 if style is None:
                     style = dict(marker="o", ms=5, color=colors[(s.arm, s.family)])
                 ax.errorbar(s.per_100km, s.avg_speed, capsize=2, lw=0.8, ls="none",
