@@ -52,6 +52,11 @@ def test_each_algorithm_trains_saves_loads_and_is_evaluated(tmp_path, algo, cls)
     again = evaluate(cfg, {"m": str(run)}, cells, episodes=3, progress=False)
     assert len(first) == 3 and first.equals(again)
     assert np.isfinite(first.avg_speed).all()
+    # read as another algorithm's (a QR-DQN file named dqn:): one line, not a traceback
+    other = "dqn"
+    with pytest.raises(ConfigError, match="is not a readable model") as err:
+        load_model(f"{other}:{run / 'model.zip'}")
+    assert "\n" not in str(err.value)
 
 
 def test_the_batched_learner_refuses_other_algorithms_and_names_are_kept():
@@ -63,19 +68,6 @@ def test_the_batched_learner_refuses_other_algorithms_and_names_are_kept():
         validate(compose("train", ["agent=ppo", "learner=batched"]))
     identity = training_identity(validate(compose("train", ["profile=tiny"])))
     assert "algo" not in identity["agent"] and "n_quantiles" not in identity["agent"]
-
-
-def test_a_model_read_as_another_algorithm_is_one_line(tmp_path):
-    """A QR-DQN file named as DQN's (``dqn:path``) is refused in one line, not a traceback."""
-    from bgap.agents.policies import load_model
-    from bgap.experiments.train import train
-
-    cfg = validate(compose("train", ["agent=qrdqn", "profile=tiny", "profile.train_steps=60",
-                                     "env=sparse", f"root={tmp_path}"]))  # fmt: skip
-    run = train(cfg, progress=False)
-    with pytest.raises(ConfigError, match="is not a readable model") as err:
-        load_model(f"dqn:{run / 'model.zip'}")
-    assert "\n" not in str(err.value)
 
 
 def _observations(rows: int = 8, batch: int = 6, present: int = 5) -> th.Tensor:

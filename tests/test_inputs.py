@@ -279,11 +279,13 @@ KEYS = ("mix", "radius", "seed", "episodes", "env.duration", "env.vehicles_densi
         "env.vehicles_count", "env.lanes_count", "env.policy_frequency")  # fmt: skip
 
 
-@settings(max_examples=200, derandomize=True, deadline=None)
+@settings(max_examples=100, derandomize=True, deadline=None)
 @given(st.dictionaries(st.sampled_from(KEYS), NUMBERS, min_size=1, max_size=3))
 def test_any_generated_setting_is_accepted_or_refused_with_a_config_error(values):
-    """Every generated value of the simulate command's numeric settings either validates
-    (and is then finite and in range where it matters) or is one ConfigError naming a key."""
+    """Every generated value of the simulate command's numeric settings, composed through
+    Hydra as the command line is (100 cases; every command's settings, merged without
+    Hydra: the test below), either validates (and is then finite and in range where it
+    matters) or is one ConfigError naming a key."""
     overrides = [f"{k}={v!r}" for k, v in values.items()]
     try:
         cfg = validate(compose("simulate", overrides))
@@ -319,11 +321,11 @@ def _numeric_keys(cfg) -> list[str]:
 
 @pytest.mark.parametrize(
     "command,examples",
-    [*((c, 12) for c in COMMANDS),
+    [*((c, 8) for c in COMMANDS),
      *(pytest.param(c, 200, marks=pytest.mark.slow) for c in COMMANDS)],
 )  # fmt: skip
 def test_any_generated_setting_of_any_command_is_accepted_or_refused_in_one_line(command, examples):
-    """Generated combinations (12 per command; 200 under -m slow, about 40 s per command on
+    """Generated combinations (8 per command; 200 under -m slow, about 40 s per command on
     2 cores) of up to three of the command's numeric settings (every
     int and float key of its composed config), merged as the command line merges them
     (OmegaConf's typed merge; composing through Hydra per case costs 0.3 s): each validates,
@@ -385,7 +387,7 @@ TRAININGS = ("learner=sb3", "learner=batched", "agent=qrdqn", "agent=ppo")
 
 @pytest.mark.parametrize(
     "learner,kills",
-    [("learner=sb3", 2), ("learner=batched", 2), ("agent=qrdqn", 1), ("agent=ppo", 1),
+    [("learner=sb3", 2), ("learner=batched", 2),
      *(pytest.param(t, 20, marks=pytest.mark.slow) for t in TRAININGS)],
 )  # fmt: skip
 def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters(
