@@ -279,11 +279,11 @@ KEYS = ("mix", "radius", "seed", "episodes", "env.duration", "env.vehicles_densi
         "env.vehicles_count", "env.lanes_count", "env.policy_frequency")  # fmt: skip
 
 
-@settings(max_examples=100, derandomize=True, deadline=None)
+@settings(max_examples=200, derandomize=True, deadline=None)
 @given(st.dictionaries(st.sampled_from(KEYS), NUMBERS, min_size=1, max_size=3))
 def test_any_generated_setting_is_accepted_or_refused_with_a_config_error(values):
     """Every generated value of the simulate command's numeric settings, composed through
-    Hydra as the command line is (100 cases; every command's settings, merged without
+    Hydra as the command line is (200 cases; every command's settings, merged without
     Hydra: the test below), either validates (and is then finite and in range where it
     matters) or is one ConfigError naming a key."""
     overrides = [f"{k}={v!r}" for k, v in values.items()]
