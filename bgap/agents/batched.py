@@ -166,10 +166,9 @@ class StackedReplay:
     def add(self, members: np.ndarray, obs, next_obs, actions, rewards, dones, timeouts) -> None:
         """One vector step of each of ``members`` (arrays (len(members), E, ...))."""
         pos = self.pos[members]
-        self.priorities[members, pos] = (self.max_priority[members] ** self.alpha)[:, None]
-        leaves = pos[:, None] * self.n_envs + np.arange(self.n_envs)
-        self.trees.set(members, leaves, self.priorities[members[:, None], pos[:, None],
-                                                        np.arange(self.n_envs)])  # fmt: skip
+        entering = (self.max_priority[members] ** self.alpha)[:, None]  # each member's E envs
+        self.priorities[members, pos] = entering
+        self.trees.set(members, pos[:, None] * self.n_envs + np.arange(self.n_envs), entering)
         new = {"obs": obs, "next_obs": next_obs, "actions": actions, "rewards": rewards,
                "dones": dones, "timeouts": timeouts}  # fmt: skip
         for name, value in new.items():

@@ -7,9 +7,10 @@ from dataclasses import dataclass, field
 from bgap.common.errors import check
 
 ALGOS = ("dqn", "qrdqn", "ppo")
-EXTRACTORS = ("flatten", "attention")
 """Learning algorithms: bgap's DQN (SB3's, with the paper's loss, schedules and prioritized
 replay), QR-DQN (sb3-contrib's, with the same replay and schedules) and SB3's PPO."""
+EXTRACTORS = ("flatten", "attention")
+"""What the networks read: the flattened observation, or ego attention over its rows."""
 
 
 @dataclass

@@ -64,8 +64,11 @@ def n_of(density: str) -> int | str:
 
 
 # ---------------------------------------------------------------------- episodes
-EPISODE_FILES = ("episodes.parquet", "episodes.csv")
-"""What ``bgap.evaluate`` writes (the csv: evaluations before the parquet)."""
+EPISODES, MODELS = "episodes.parquet", "models.csv"
+"""What ``bgap.evaluate`` writes into an evaluation folder: the per-episode table (zstd
+parquet) and one row per evaluated model (its checkpoint choice and settings)."""
+EPISODE_FILES = (EPISODES, "episodes.csv")
+"""An evaluation folder's episodes (the csv: evaluations before the parquet)."""
 
 
 def evaluation_folders(source: str | Path) -> list[Path]:
@@ -104,8 +107,8 @@ def load_evaluations(
             df = read_table(path)
             df["traffic"] = forced or traffic_of(folder)
             frames.append(df)
-            if (folder / "models.csv").exists():
-                models.append(read_table(folder / "models.csv"))
+            if (folder / MODELS).exists():
+                models.append(read_table(folder / MODELS))
     df = parse_policies(pd.concat(frames, ignore_index=True))
     key = ["policy", "traffic", "mix", "density", "radius", "seed"]
     repeated = df.duplicated(key)

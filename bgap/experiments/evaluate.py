@@ -27,6 +27,7 @@ from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
 from bgap.agents.policies import as_policy, load_model, rollout
+from bgap.analysis.episodes import EPISODES, MODELS
 from bgap.analysis.stats import per_100km, t_interval, wilson_interval
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
@@ -167,21 +168,6 @@ def compact(episodes: pd.DataFrame) -> pd.DataFrame:
     types = {c: t for c, t in STORED.items() if c in episodes}
     types |= {c: "float32" for c in episodes if c.startswith("r_")}
     return episodes.astype(types)
-
-
-EPISODES = "episodes.parquet"
-"""The evaluation's per-episode table (zstd-compressed parquet)."""
-
-
-def read_episodes(folder: str | Path) -> pd.DataFrame:
-    """An evaluation folder's episodes: ``episodes.parquet``, or the ``episodes.csv`` that
-    evaluations before it wrote (in the stored types)."""
-    folder = Path(folder)
-    if (folder / EPISODES).exists():
-        return read_table(folder / EPISODES)
-    if (folder / "episodes.csv").exists():
-        return compact(read_table(folder / "episodes.csv"))
-    raise FileNotFoundError(f"no {EPISODES} in {folder}: run python -m bgap.evaluate first")
 
 
 def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
@@ -339,10 +325,6 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
             specs[m.parent.name] = str(m)
     specs.update({b: b for b in cfg.baselines if b in BASELINES})
     return specs
-
-
-MODELS = "models.csv"
-"""One row per evaluated model: its run folder's checkpoint choice and settings."""
 
 
 def model_records(specs: dict[str, Any]) -> pd.DataFrame:
