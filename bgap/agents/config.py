@@ -11,6 +11,9 @@ ALGOS = ("dqn", "qrdqn", "ppo")
 replay), QR-DQN (sb3-contrib's, with the same replay and schedules) and SB3's PPO."""
 EXTRACTORS = ("flatten", "attention")
 """What the networks read: the flattened observation, or ego attention over its rows."""
+OBSERVATION_OPTIONS = {"closing": 1, "ttc": 1, "rule": 5}
+"""Columns a learner may add to the paper's observation (:mod:`bgap.agents.observation`),
+with how many each adds, in the order they are appended."""
 
 
 @dataclass
@@ -69,6 +72,10 @@ class AgentConfig:
     """PPO: weight of the entropy bonus."""
     vf_coef: float = 0.5
     """PPO: weight of the value loss."""
+    observation: list[str] = field(default_factory=list)
+    """Columns added to the paper's observation (:data:`OBSERVATION_OPTIONS`; [] the paper's):
+    ``closing`` speed and ``ttc`` (time to collision) per vehicle, ``rule`` the rule-based
+    ego's suggestion; presets ``observation=paper|ttc|rule|ttc_rule``."""
 
     def __post_init__(self) -> None:
         check(self.algo in ALGOS, "agent.algo", self.algo, f"use one of {', '.join(ALGOS)}")
@@ -85,6 +92,7 @@ class AgentConfig:
         check(self.clip_range > 0, "agent.clip_range", self.clip_range, "must be > 0")
         check(self.ent_coef >= 0, "agent.ent_coef", self.ent_coef, "must be >= 0")
         check(self.vf_coef >= 0, "agent.vf_coef", self.vf_coef, "must be >= 0")
+        self.observation = observation_options(self.observation)
         check(self.replay in ("per", "uniform"), "agent.replay", self.replay, "use per or uniform")
         check(0 < self.gamma <= 1, "agent.gamma", self.gamma, "must lie in (0, 1]")
         check(self.learning_rate > 0, "agent.learning_rate", self.learning_rate, "must be > 0")
@@ -100,3 +108,15 @@ class AgentConfig:
             self.buffer_size,
             "must be >= agent.batch_size >= 1",
         )
+
+
+def observation_options(options: list[str], key: str = "agent.observation") -> list[str]:
+    """``options`` in :data:`OBSERVATION_OPTIONS`' order (one learner, one name), or a
+    ConfigError naming the unknown or repeated one."""
+    options = list(options)
+    for option in options:
+        check(option in OBSERVATION_OPTIONS, key, option,
+              f"is not an observation option; use some of {list(OBSERVATION_OPTIONS)} (or "
+              "the presets observation=paper|ttc|rule|ttc_rule)")  # fmt: skip
+    check(len(set(options)) == len(options), key, options, "names an option twice")
+    return [option for option in OBSERVATION_OPTIONS if option in options]

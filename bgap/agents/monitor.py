@@ -30,7 +30,7 @@ import numpy as np
 import pandas as pd
 from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.agents.policies import greedy, rollout
+from bgap.agents.policies import rollout
 from bgap.common.plotting import pyplot
 from bgap.common.runs import BEST_MODEL, write_atomic
 from bgap.sim.rollout import EpisodeStats
@@ -149,7 +149,7 @@ class TrainingMonitor:
         the gradient updates made so far and, for reference, the idle and rule-based egos'
         figures on the same episodes."""
         seeds = range(self.eval_seed, self.eval_seed + self.eval_episodes)
-        frame = rollout(self.env_config, greedy(policy), seeds, self.backend).episodes
+        frame = rollout(self.env_config, policy, seeds, self.backend).episodes
         if self.references is None:  # the same episodes every time: played once
             self.references = {
                 name: _figures(rollout(self.env_config, name, seeds, self.backend).episodes)

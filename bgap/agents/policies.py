@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from bgap.agents.observation import ObservationFeatures, model_features
 from bgap.agents.rule_based import rule_based
 from bgap.common.errors import ConfigError
 from bgap.common.runs import read_or_refuse
@@ -112,16 +113,34 @@ def _algorithm_of(path: Path) -> str:
 def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:
     """Any policy spec (module docstring) as a :data:`~bgap.sim.rollout.Policy`, with the
     number of observation rows it needs (None: any). ``config``: the environment a baseline
-    drives in."""
+    drives in, or a model trained with observation options observes
+    (:mod:`bgap.agents.observation`: their columns are added to each observation here)."""
     if isinstance(spec, (str, Path)):
         if str(spec) in BASELINES:
             return baseline(str(spec), config), None
         spec = load_model(spec)
+    if hasattr(spec, "predict") and model_features(spec):
+        features = ObservationFeatures(model_features(spec), config)
+        rows, columns = spec.observation_space.shape
+        if columns != 5 + features.columns:
+            raise ConfigError(
+                f"a model with observation options {features.features} should read "
+                f"{5 + features.columns} columns, its network reads {columns}: the file is not "
+                "one bgap.train wrote"
+            )
+        return greedy_on(spec, features), int(rows)
     return as_callable(spec)
 
 
+def greedy_on(model: Any, features: ObservationFeatures) -> Policy:
+    """``model``'s greedy actions on the observations with ``features``' columns added."""
+    act = greedy(model)
+    return lambda obs, rngs: act(features(obs), rngs)
+
+
 def rollout(config: dict[str, Any], policy: Any, seeds: Iterable[int], *args, **kwargs) -> Rollout:
-    """:func:`bgap.sim.rollout.rollout` for any policy spec: names and paths resolved here."""
-    if isinstance(policy, (str, Path)):
+    """:func:`bgap.sim.rollout.rollout` for any policy spec: names, paths and models' observation
+    options resolved here."""
+    if isinstance(policy, (str, Path)) or hasattr(policy, "predict"):
         policy = as_policy(policy, config)[0]
     return sim_rollout.rollout(config, policy, seeds, *args, **kwargs)

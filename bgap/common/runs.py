@@ -90,11 +90,12 @@ stored config without the key is read as having it."""
 ADDED_WITH_ALGOS = {
     "algo": "dqn", "extractor": "flatten", "attention_dim": 64, "attention_heads": 2,
     "n_quantiles": 25, "n_steps": 128, "n_epochs": 10, "gae_lambda": 0.95,
-    "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5,
+    "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5, "observation": [],
 }  # fmt: skip
-"""The ``agent`` settings that came with the algorithms beside DQN, at the values every
-earlier training had: read into configs saved before them, and left out of a training's
-identity at these values (its run folder keeps its name)."""
+"""The ``agent`` settings that came with the algorithms beside DQN and the observation
+options (issue 32), at the values every earlier training had: read into configs saved
+before them, and left out of a training's identity at these values (its run folder keeps
+its name)."""
 ADDED_LATER |= {f"agent.{k}": v for k, v in ADDED_WITH_ALGOS.items()}
 
 

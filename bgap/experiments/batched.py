@@ -27,6 +27,7 @@ from bgap.agents.monitor import (
     TrainingMonitor,
     plot_learning_curves,
 )
+from bgap.agents.observation import MODEL_ATTRIBUTE, with_features
 from bgap.common.errors import ConfigError, Interrupted, check
 from bgap.common.runs import exclusive, write_atomic
 from bgap.experiments.config import ExperimentConfig
@@ -53,8 +54,11 @@ class _MemberPolicy:
     """Member k of a batched learner seen as a model (``predict``, ``save``, ``_n_updates``)
     by :class:`~bgap.agents.monitor.TrainingMonitor`'s periodic evaluations."""
 
-    def __init__(self, learner: BatchedDQN, k: int, save: Callable[[int, Path], None]) -> None:
+    def __init__(
+        self, learner: BatchedDQN, k: int, save: Callable[[int, Path], None], options: list[str]
+    ) -> None:
         self.learner, self.k, self._save = learner, k, save
+        setattr(self, MODEL_ATTRIBUTE, options)  # its observation's added columns
 
     def save(self, path: Path) -> None:
         self._save(self.k, path)
@@ -215,6 +219,7 @@ class _Members:
                 configs[members[0]], len(members) * self.e, self.first.backend,
                 asynchronous=self.first.backend == "highway",
             )  # fmt: skip
+            venv = with_features(venv, self.cfgs[members[0]].agent.observation, configs[members[0]])
             groups.append(_Group(venv, members, self.e))
         shape = groups[0].venv.single_observation_space.shape
         for g in groups:
@@ -332,7 +337,7 @@ class _Members:
             self.monitors[k].state["steps"] = int(learner.num_timesteps[k])
             go_on = self.monitors[k].on_step(
                 rewards[k], infos[k], terminated[k] | truncated[k],
-                _MemberPolicy(learner, k, self.save_model),
+                _MemberPolicy(learner, k, self.save_model, self.first.agent.observation),
             )  # fmt: skip
             if go_on:
                 keep.append(k)

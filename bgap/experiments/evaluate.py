@@ -67,7 +67,7 @@ def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
 def _evaluate_chunk(
     name: str, spec: Any, cell: Cell, env_cfg: dict, seeds: list[int], backend: str = "highway"
 ) -> list:
-    policy, rows = as_policy(spec)
+    policy, rows = as_policy(spec, env_cfg)
     if rows is not None and rows != env_cfg["observation"]["vehicles_count"]:
         return []  # a model sees a fixed number of vehicles: only its own density
     key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}

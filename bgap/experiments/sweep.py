@@ -32,7 +32,7 @@ from omegaconf import DictConfig
 from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.agents.policies import baseline, greedy, load_model, rollout
+from bgap.agents.policies import baseline, load_model, rollout
 from bgap.analysis.stats import constrained_score
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
@@ -119,7 +119,7 @@ class PruneCallback(BaseCallback):
 def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
     """Collision % and average speed of the greedy model on the validation episodes of its
     own training traffic (the mix drawn as in training)."""
-    return _validation(greedy(model), cfg, episodes)
+    return _validation(model, cfg, episodes)
 
 
 def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.DataFrame:

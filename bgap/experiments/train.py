@@ -34,6 +34,7 @@ from bgap.agents.monitor import (
     TrainingMonitor,
     plot_learning_curves,
 )
+from bgap.agents.observation import with_features
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
 from bgap.common.runs import exclusive, write_atomic
@@ -59,14 +60,15 @@ def make_training_env(cfg: ExperimentConfig, n_envs: int, seed: int) -> VecMonit
     VectorHighway, or highway-env copies in subprocesses) as an SB3 VecEnv; env k is seeded
     ``seed + k``. Both backends draw each episode's mix themselves (``mix_sampling``)."""
     config = env_config(cfg, cfg.mix_sampling)
-    venv = SB3VecEnv(make_vector_env(config, n_envs, cfg.backend, asynchronous=n_envs > 1))
+    venv = make_vector_env(config, n_envs, cfg.backend, asynchronous=n_envs > 1)
+    venv = SB3VecEnv(with_features(venv, cfg.agent.observation, config))
     venv.seed(seed)
     return VecMonitor(venv)
 
 
 def _vector_highway(env: VecMonitor) -> VectorHighway | None:
     """The VectorHighway inside a training VecEnv (None on highway-env)."""
-    inner = env.venv.venv
+    inner = env.venv.venv.unwrapped
     return inner if isinstance(inner, VectorHighway) else None
 
 

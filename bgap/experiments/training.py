@@ -16,6 +16,7 @@ from bgap.agents.dqn import DQN
 from bgap.agents.monitor import (
     recover_checkpoint,
 )
+from bgap.agents.observation import MODEL_ATTRIBUTE
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.common.errors import ConfigError
 from bgap.common.runs import ADDED_WITH_ALGOS, VOLATILE, digest, read_or_refuse, save_run_metadata
@@ -84,7 +85,15 @@ def run_dir_for(cfg: ExperimentConfig) -> Path:
 
 
 def build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
-    """The SB3 model of ``cfg.agent.algo`` (:func:`model_class`), the agent's hyperparameters."""
+    """The SB3 model of ``cfg.agent.algo`` (:func:`model_class`), the agent's hyperparameters;
+    it records the agent's observation options, saved in its file (``env`` observes them)."""
+    model = _build_model(cfg, env, tb_dir)
+    if cfg.agent.observation:
+        setattr(model, MODEL_ATTRIBUTE, list(cfg.agent.observation))
+    return model
+
+
+def _build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
     a = cfg.agent
     network = {"net_arch": list(a.net_arch)}
     if a.extractor == "attention":
