@@ -128,3 +128,41 @@ def test_an_attention_network_trains_and_loads_with_its_extractor(tmp_path, algo
     refusal = "stacks plain MLPs only" if algo == "dqn" else "trains DQN only"
     with pytest.raises(ConfigError, match=refusal):
         validate(compose("train", [*overrides, "learner=batched"]))
+
+
+def test_sb3_trainings_side_by_side_learn_what_they_learn_alone(tmp_path):
+    """bgap.train seeds=[0,1] with the SB3 learner in two processes (workers=2) and one after
+    the other (workers=1): the same parameters, in the same per-training folders."""
+    from bgap.agents.policies import load_model
+    from bgap.experiments.train import train_side_by_side
+    from bgap.experiments.training import member_configs
+
+    dirs = {}
+    for workers in (1, 2):
+        overrides = ["agent=ppo", "profile=tiny", "env=sparse", "seeds=[0,1]", "backend=vector"]
+        cfg = validate(compose("train", [*overrides, f"run_dir={tmp_path}/w{workers}"]))
+        dirs[workers] = train_side_by_side(member_configs(cfg), workers)
+    assert [d.name for d in dirs[1]] == ["sparse-behavior_rich-s0", "sparse-behavior_rich-s1"]
+    for alone, side in zip(dirs[1], dirs[2], strict=True):
+        a, b = (load_model(d).policy.state_dict() for d in (alone, side))
+        assert all(th.equal(a[k], b[k]) for k in a)
+    s0, s1 = (load_model(d).policy.state_dict() for d in dirs[2])
+    assert not all(th.equal(s0[k], s1[k]) for k in s0)  # two seeds, two trainings
+
+
+def test_the_recipe_objective_scores_both_policies_against_the_rule_based_ego():
+    """Hand-built figures: below 0 exactly when both of issue 32's rules hold; a policy under
+    0.95 x the rule-based ego's speed puts the recipe behind every one that keeps the pace."""
+    from bgap.analysis.stats import rule_objective
+
+    def f(pct, per100, speed):
+        return {"collision_pct": pct, "per_100km": per100, "avg_speed": speed}
+
+    rule, stock_rule = f(3.0, 2.0, 27.0), f(0.0, 0.0, 22.0)
+    # behaviour-rich 1.5 per 100 km (0.5 under the rule's), default 0.5% (0.5 under 0 + 1)
+    assert rule_objective(f(2.0, 1.5, 26.0), rule, f(0.5, 0.3, 21.0), stock_rule) == -0.5
+    # the default policy's 2% is 1 point over its allowance: the worse excess counts
+    assert rule_objective(f(2.0, 1.5, 26.0), rule, f(2.0, 1.0, 21.0), stock_rule) == 1.0
+    # 25.0 m/s < 0.95 x 27 = 25.65: 1000 + the shortfall, 2.53% of the floor
+    slow = rule_objective(f(0.0, 0.0, 25.0), rule, f(0.0, 0.0, 21.0), stock_rule)
+    assert slow == pytest.approx(1000 + 100 * (25.65 - 25.0) / 25.65)

@@ -105,3 +105,50 @@ def test_a_tiny_recipe_writes_its_presets_and_tables(tmp_path):
     chosen = pd.read_json(paths["chosen"], typ="series")
     assert reward.collision == pytest.approx(chosen["params"]["reward.collision"])
     assert paths["curves"].exists() and paths["table"].exists()
+
+
+def test_by_the_rule_the_mean_over_seeds_decides_and_intervals_have_width():
+    """mode=rule's choice (issue 32): candidates ranked by the objective of their means over
+    seeds; a candidate whose seeds agree exactly still gets an interval of non-zero width
+    (widened to its pooled episodes' exact interval)."""
+    from bgap.experiments.recipe import choose_by_rule
+
+    cfg = _cfg("mode=rule")
+    rule = {"rule_collision_pct": 3.0, "rule_per_100km": 2.0, "rule_avg_speed": 27.0,
+            "stock_rule_collision_pct": 0.0, "stock_rule_per_100km": 0.0,
+            "stock_rule_avg_speed": 22.0}  # fmt: skip
+    rows = []
+    for trial, per100, speed in ((1, [1.0, 1.0], [26.0, 26.0]), (2, [0.0, 0.5], [24.0, 24.0])):
+        for seed in (0, 1):
+            rows.append({"trial": trial, "seed": seed, "per_100km": per100[seed],
+                         "avg_speed": speed[seed], "collision_pct": 2.0, "crashes": 2,
+                         "episodes": 100, "km": 160.0, "stock_collision_pct": 0.5,
+                         "stock_per_100km": 0.3, "stock_avg_speed": 21.5, "stock_crashes": 0,
+                         "stock_episodes": 100, "stock_km": 130.0, **rule})  # fmt: skip
+    summary = choose_by_rule(cfg, pd.DataFrame(rows))
+    # trial 2 is safer but at 24 < 0.95 x 27 m/s: trial 1 (-0.5: 1.0 per 100 km under 2.0,
+    # 0.5% under its allowance) ranks first
+    assert list(summary.trial) == [1, 2] and summary.objective[0] == pytest.approx(-0.5)
+    first = summary.iloc[0]
+    assert first.per_100km_lo < first.per_100km < first.per_100km_hi  # seeds agree: widened
+    assert first.stock_collision_pct_lo == 0.0 < first.stock_collision_pct_hi
+
+
+@pytest.mark.slow
+def test_a_tiny_recipe_by_the_rule_trains_and_scores_both_policies(tmp_path):
+    from bgap.experiments.recipe import recipe
+
+    cfg = _cfg(
+        "mode=rule", "agent=qrdqn", "sweep=learner_qrdqn", "profile=tiny", "trials=2",
+        "candidates=1", "check_seeds=[0,1]", "check_episodes=10", "sweep_eval_episodes=4",
+        "env=sparse", "backend=vector", f"root={tmp_path}",
+    )  # fmt: skip
+    paths = recipe(cfg, progress=False)
+    table = pd.read_csv(paths["candidates"])
+    assert len(table) == 2 and (table.rule_avg_speed > 20).all()
+    assert (table.stock_rule_avg_speed > 20).all() and table.stock_avg_speed.between(5, 40).all()
+    assert "rule-based ego" in paths["table"].read_text()
+    agent = validate(
+        compose("train", ["agent=user_recipe", f"hydra.searchpath=[file://{tmp_path}/presets]"])
+    ).agent
+    assert agent.algo == "qrdqn"

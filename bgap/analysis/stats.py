@@ -244,6 +244,43 @@ def versus_rule(per100: float, speed: float, rule_per100: float, rule_speed: flo
     return "trades"
 
 
+STOCK_MARGIN = 1.0
+"""Percentage points of episodes a default policy may crash in beyond the rule-based ego's,
+in stock traffic, and still meet issue 32's stock rule."""
+
+
+def rule_objective(
+    rich: dict[str, float],
+    rich_rule: dict[str, float],
+    stock: dict[str, float],
+    stock_rule: dict[str, float],
+    floor: float = RULE_FLOOR,
+    margin: float = STOCK_MARGIN,
+) -> float:
+    """Issue 32's recipe objective (lower is better), scoring both policies of a recipe
+    against the rule-based ego on the same validation episodes. Each argument holds
+    ``collision_pct``, ``per_100km`` and ``avg_speed``: the behaviour-rich policy in its
+    traffic, the rule-based ego there, the default policy in stock traffic, the rule-based
+    ego there.
+
+    A policy below ``floor`` x the rule-based ego's speed makes the value 1000 + the sum of
+    both policies' shortfalls in % of their floors, so a recipe whose two policies keep the
+    pace ranks above any that does not. Otherwise it is the worse of the two excesses: the
+    behaviour-rich policy's collisions per 100 km minus the rule-based ego's, and the default
+    policy's collision % minus the rule-based ego's minus ``margin``. Below 0: both of issue
+    32's rules are met (the first strictly)."""
+    short = 0.0
+    for policy, rule in ((rich, rich_rule), (stock, stock_rule)):
+        need = floor * rule["avg_speed"]
+        short += max(0.0, 100.0 * (need - policy["avg_speed"]) / need) if need > 0 else 0.0
+    if short > 0:
+        return 1000.0 + short
+    return max(
+        rich["per_100km"] - rich_rule["per_100km"],
+        stock["collision_pct"] - stock_rule["collision_pct"] - margin,
+    )
+
+
 def holm(pvalues: np.ndarray) -> np.ndarray:
     """Holm's step-down adjusted p-values (family-wise error control over a table of
     claims): the k-th smallest of m p-values is multiplied by m - k + 1, then made

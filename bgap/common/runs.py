@@ -17,7 +17,7 @@ import pickle
 import shlex
 import sys
 import zipfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, TypeVar
@@ -245,6 +245,14 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
         handle.close()
         if created and not any(folder.iterdir()):  # refused before writing: leave no trace
             folder.rmdir()
+
+
+def held_by_parent(folders: Iterable[str | Path]) -> None:
+    """In a worker process: ``folders`` are locked by the process that started it (its
+    :func:`exclusive` covers this one's writes), so this process's :func:`exclusive` on them
+    is re-entrant, as in the parent."""
+    for folder in folders:
+        _HELD.setdefault(Path(folder).resolve(), 1)
 
 
 def _lock(path: Path, wait: bool) -> Any:

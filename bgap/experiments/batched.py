@@ -33,9 +33,9 @@ from bgap.common.runs import exclusive, write_atomic
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
+    member_dirs,
     open_run_dir,
     read_checkpoint,
-    run_dir_for,
     training_config,
 )
 from bgap.sim.simulators import make_vector_env
@@ -103,13 +103,7 @@ def train_batched(
                     f"members of one batched learner need the same {key}: seed {c.seed} "
                     f"({c.policy}) differs from seed {first.seed} ({first.policy})"
                 )
-    dirs = [run_dir_for(c) for c in cfgs]
-    if first.run_dir and (len(cfgs) > 1 or first.seeds or first.policies):
-        # one folder per member under run_dir, named as the pipeline names its runs (the
-        # settings are in each folder's config.yaml, which refuses another training); also
-        # for a single member asked for by seeds=/policies=, so the layout does not depend
-        # on how many there are
-        dirs = [Path(first.run_dir) / f"{c.env.name}-{c.policy}-s{c.seed}" for c in cfgs]
+    dirs = member_dirs(cfgs)
     if len(set(dirs)) < len(dirs):
         raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
     with ExitStack() as locks:  # each member's folder, while this process writes it

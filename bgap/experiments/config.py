@@ -8,6 +8,7 @@ from typing import Optional
 from omegaconf import DictConfig
 
 from bgap.agents.config import AgentConfig
+from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN
 from bgap.common import config as plumbing
 from bgap.common.errors import check
 from bgap.common.vocab import (
@@ -112,7 +113,8 @@ class ExperimentConfig(BaseConfig):
     """Validation episodes (training's periodic evaluations, sweeps' scores) use seed
     val_seed + k: choices are made on these, never on the test episodes (ours)."""
     workers: int = 2
-    """Evaluation worker processes."""
+    """Worker processes: evaluation's, and ``bgap.train``'s and ``bgap.run``'s for several
+    SB3 trainings side by side (one training per process)."""
     learner: str = "sb3"
     """``sb3``: Stable-Baselines3's DQN, one training per process (the reference);
     ``batched``: every training of the command in one batched learner
@@ -197,7 +199,9 @@ class SweepConfig(ExperimentConfig):
     mode: str = "multi"
     """``multi``: minimise collisions and maximise speed (Pareto front); ``single``: the
     scalarisation collision % - speed_weight * speed, with pruning; ``constrained``:
-    minimise collisions among policies at least ``speed_floor`` x idle's speed, with pruning."""
+    minimise collisions among policies at least ``speed_floor`` x idle's speed, with pruning;
+    ``rule``: each trial trains both policies (behaviour-rich and default) and scores them
+    against the rule-based ego (:func:`bgap.analysis.stats.rule_objective`), with pruning."""
     trials: int = 20
     """Finished trials wanted in the study, counted across workers and reruns."""
     speed_weight: float = 2.0
@@ -220,12 +224,25 @@ class SweepConfig(ExperimentConfig):
     (then ``reward=user_tuned``)."""
     overrides: list[str] = field(default_factory=list)
     """Extra overrides every trial composes with (e.g. ["profile.train_steps=5000"])."""
+    rule_floor: float = RULE_FLOOR
+    """Mode ``rule``: the fraction of the rule-based ego's mean speed each policy must keep."""
+    stock_margin: float = STOCK_MARGIN
+    """Mode ``rule``: collision percentage points the default policy may have beyond the
+    rule-based ego's in stock traffic."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        modes = ("multi", "single", "constrained")
+        modes = ("multi", "single", "constrained", "rule")
         check(self.mode in modes, "mode", self.mode, f"use one of {modes}")
         check(0 < self.speed_floor <= 2, "speed_floor", self.speed_floor, "a fraction in (0, 2]")
+        check(0 < self.rule_floor <= 2, "rule_floor", self.rule_floor, "a fraction in (0, 2]")
+        check(self.stock_margin >= 0, "stock_margin", self.stock_margin, "must be >= 0")
+        check(
+            self.mode != "rule" or self.policy == "behavior_rich",
+            "policy",
+            self.policy,
+            "mode=rule trains both policies of each trial: leave policy=behavior_rich",
+        )
 
 
 @dataclass

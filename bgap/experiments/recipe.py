@@ -42,20 +42,23 @@ import optuna
 import pandas as pd
 from omegaconf import DictConfig
 
-from bgap.analysis.stats import t_interval
+from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
 from bgap.common.config import app, load, validate
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata
 from bgap.common.vocab import CRASH_KINDS
-from bgap.experiments.config import SCHEMAS, RecipeConfig, compose
+from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
 from bgap.experiments.evaluate import crash_split
 from bgap.experiments.sweep import (
+    RULE_KEYS,
     finished,
     objective,
+    rule_score,
     study_name,
     sweep,
     validation_episodes,
+    versus_rule,
     write_outputs,
 )
 from bgap.experiments.train import train
@@ -94,6 +97,9 @@ def check_candidate(
         tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
         train(replace(tcfg, resume=True), progress=progress)  # reused once finished
         row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
+        if cfg.mode == "rule":  # both policies, each beside the rule-based ego
+            rows.append(row | _check_both(cfg, tcfg, run_dir, progress))
+            continue
         for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
             ep = validation_episodes(policy, tcfg, cfg.check_episodes)
             prefix = "" if name == "policy" else f"{name}_"
@@ -122,6 +128,90 @@ def check_candidate(
             )
         print(message, flush=True)
     return rows
+
+
+def _check_both(
+    cfg: RecipeConfig, tcfg: ExperimentConfig, run_dir: Path, progress: bool
+) -> dict[str, Any]:
+    """Mode ``rule``: the behaviour-rich policy trained in ``run_dir`` and the same recipe's
+    default policy (trained beside it) against the rule-based ego, on validation episodes."""
+    row = versus_rule(str(run_dir), tcfg, cfg.check_episodes)
+    stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
+    train(replace(stock, resume=True), progress=progress)
+    stock_row = versus_rule(stock.run_dir, stock, cfg.check_episodes)
+    row |= {f"stock_{k}": v for k, v in stock_row.items()}
+    print(
+        f"trial {run_dir.name}: behaviour-rich {row['per_100km']:.2f} collisions per 100 km at "
+        f"{row['avg_speed']:.2f} m/s (rule {row['rule_per_100km']:.2f} at "
+        f"{row['rule_avg_speed']:.2f}); default in stock traffic {row['stock_collision_pct']:.0f}% "
+        f"at {row['stock_avg_speed']:.2f} m/s (rule {row['stock_rule_collision_pct']:.0f}% at "
+        f"{row['stock_rule_avg_speed']:.2f}); objective {rule_score(cfg, row):.2f}",
+        flush=True,
+    )
+    return row
+
+
+def choose_by_rule(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
+    """Mode ``rule``: per candidate, the means over seeds of :data:`RULE_KEYS`, 95% t
+    intervals across seeds of the policies' rates and speeds, and the objective of the means
+    (:func:`~bgap.experiments.sweep.rule_score`); best first."""
+    rows = []
+    for trial, g in table.groupby("trial"):
+        row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
+        row |= {key: float(g[key].mean()) for key in RULE_KEYS}
+        # across seeds (the independent units), widened where needed to the pooled
+        # episodes' exact interval: never of zero width
+        for prefix in ("", "stock_"):
+            crashes, km = int(g[f"{prefix}crashes"].sum()), float(g[f"{prefix}km"].sum())
+            episodes = int(g[f"{prefix}episodes"].sum())
+            pooled = {
+                "per_100km": poisson_interval(crashes, km / 100.0),
+                "collision_pct": tuple(100 * b for b in wilson_interval(crashes, episodes)),
+                "avg_speed": (np.inf, -np.inf),
+            }
+            for key, (p_lo, p_hi) in pooled.items():
+                lo, hi = t_interval(g[f"{prefix}{key}"].to_numpy())
+                row[f"{prefix}{key}_lo"] = max(min(lo, p_lo), 0.0)
+                row[f"{prefix}{key}_hi"] = max(hi, p_hi)
+        row["objective"] = rule_score(cfg, row)
+        rows.append(row)
+    return pd.DataFrame(rows).sort_values(["objective", "trial"]).reset_index(drop=True)
+
+
+def markdown_by_rule(cfg: RecipeConfig, summary: pd.DataFrame, params: dict) -> str:
+    lines = [
+        f"# Recipe check: the {len(summary)} best sweep trials, {len(cfg.check_seeds)} training "
+        f"seeds each, {cfg.check_episodes} validation episodes per seed and policy",
+        "",
+        f"Learner: {cfg.agent.algo} (agent={cfg.agent.name}). Traffic: {cfg.env.name}, mix "
+        f"sampling {cfg.mix_sampling} for the behaviour-rich policy; highway-env's stock "
+        "traffic for the default policy. Objective (issue 32, fixed before the search): each "
+        f"policy at {cfg.rule_floor:g} x the rule-based ego's speed or more, then the worse of "
+        "the behaviour-rich policy's collisions per 100 km minus the rule-based ego's and the "
+        "default policy's collision % minus the rule-based ego's minus "
+        f"{cfg.stock_margin:g}; below 0 both rules are met. Intervals: 95% t across seeds.",
+        "",
+        "| trial | behaviour-rich per 100 km [95% CI] | speed m/s [95% CI] | rule per 100 km / "
+        "m/s | default in stock % [95% CI] | speed m/s | rule in stock % / m/s | objective "
+        "| settings |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in summary.itertuples():
+        settings = ", ".join(
+            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+            for k, v in params[r.trial].items()
+        )
+        lines.append(
+            f"| {r.trial}{' (chosen)' if r.Index == 0 else ''} | {r.per_100km:.2f} "
+            f"[{r.per_100km_lo:.2f}, {r.per_100km_hi:.2f}] | {r.avg_speed:.2f} "
+            f"[{r.avg_speed_lo:.2f}, {r.avg_speed_hi:.2f}] | {r.rule_per_100km:.2f} / "
+            f"{r.rule_avg_speed:.2f} | {r.stock_collision_pct:.1f} "
+            f"[{r.stock_collision_pct_lo:.1f}, {r.stock_collision_pct_hi:.1f}] | "
+            f"{r.stock_avg_speed:.2f} | "
+            f"{r.stock_rule_collision_pct:.1f} / {r.stock_rule_avg_speed:.2f} | "
+            f"{r.objective:.2f} | {settings} |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 STOCK_KEYS = ("stock_collision_pct", "stock_avg_speed", "stock_idle_collision_pct",
@@ -264,9 +354,13 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     rows = [row for t in chosen_from for row in check_candidate(cfg, t, root, progress)]
     table = pd.DataFrame(rows)
     table.to_csv(out / "candidates.csv", index=False)
-    summary = choose(cfg, table)
     params = {t.number: t.params for t in chosen_from}
-    (out / "table.md").write_text(markdown(cfg, summary, params))
+    if cfg.mode == "rule":
+        summary = choose_by_rule(cfg, table)
+        (out / "table.md").write_text(markdown_by_rule(cfg, summary, params))
+    else:
+        summary = choose(cfg, table)
+        (out / "table.md").write_text(markdown(cfg, summary, params))
     best = summary.iloc[0]
     trial = next(t for t in chosen_from if t.number == best.trial)
     plot_curves(
@@ -281,6 +375,14 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         f"{len(cfg.check_seeds)} seeds x {cfg.check_episodes} validation episodes: "
         f"{best.collision_pct:.1f}% collisions at {best.avg_speed:.2f} m/s; idle "
         f"{best.idle_collision_pct:.1f}% at {best.idle_avg_speed:.2f} m/s)"
+        if cfg.mode != "rule"
+        else f"Written by python -m bgap.recipe mode=rule (sweep trial {trial.number}, checked "
+        f"on {len(cfg.check_seeds)} seeds x {cfg.check_episodes} validation episodes: "
+        f"behaviour-rich {best.per_100km:.2f} collisions per 100 km at {best.avg_speed:.2f} m/s "
+        f"(rule-based ego {best.rule_per_100km:.2f} at {best.rule_avg_speed:.2f}); default in "
+        f"stock traffic {best.stock_collision_pct:.1f}% at {best.stock_avg_speed:.2f} m/s "
+        f"(rule-based ego {best.stock_rule_collision_pct:.1f}% at "
+        f"{best.stock_rule_avg_speed:.2f}))"
     )
     converged = finished(study, cfg)
     for group in GROUPS:

@@ -34,7 +34,7 @@ from bgap.experiments.evaluate import (
     summarize,
     write_results,
 )
-from bgap.experiments.train import train
+from bgap.experiments.train import train_side_by_side
 from bgap.experiments.training import run_dir_for, training_config
 
 
@@ -70,7 +70,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
         if cfg.learner == "batched":  # every training of the command in one learner
             dirs = train_batched(configs)
         else:
-            dirs = [train(c) for c in configs]
+            dirs = train_side_by_side(configs, cfg.workers)
     models = {}
     for (seed, policy), d in zip(pairs, dirs, strict=True):
         # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.

@@ -33,17 +33,26 @@ from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import baseline, load_model, rollout
-from bgap.analysis.stats import constrained_score
+from bgap.analysis.stats import constrained_score, per_100km, rule_objective
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import VOLATILE, digest
+from bgap.common.runs import ADDED_WITH_ALGOS, VOLATILE, digest
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
 from bgap.experiments.training import training_config
 from bgap.traffic.scenario import env_config
+
+RULE_KEYS = tuple(
+    f"{policy}{who}{k}"
+    for policy in ("", "stock_")
+    for who in ("", "rule_")
+    for k in ("collision_pct", "per_100km", "avg_speed")
+)
+"""Mode ``rule``'s figures per trial: the behaviour-rich policy and the rule-based ego in its
+traffic, then (``stock_``) the default policy and the rule-based ego in stock traffic."""
 
 SWEEPS_DIR = Path(__file__).resolve().parent / "sweeps"
 """The packaged Optuna search spaces of ``bgap.sweep``."""
@@ -97,6 +106,11 @@ def study_name(cfg: SweepConfig) -> str:
     trial's value (budget, traffic, reward, evaluation, ...): sweeps of other settings never
     pool their trials."""
     settings = {k: v for k, v in asdict(cfg).items() if k not in STUDY_VOLATILE}
+    # settings added later, at the value every earlier study had, leave its name as it was
+    if cfg.mode != "rule":
+        settings = {k: v for k, v in settings.items() if k not in ("rule_floor", "stock_margin")}
+    settings["agent"] = {k: v for k, v in settings["agent"].items()
+                         if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
     return cfg.study or f"{cfg.sweep}-{cfg.mode}-{cfg.env.name}-{digest(settings)}"
 
 
@@ -134,6 +148,47 @@ def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.Data
 def _validation(policy, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
     rows = validation_episodes(policy, cfg, episodes)
     return 100.0 * float(rows.crashed.mean()), float(rows.avg_speed.mean())
+
+
+def validation_figures(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float]:
+    """``collision_pct``, ``per_100km`` (collisions per 100 km of ego travel) and
+    ``avg_speed`` of ``policy`` on :func:`validation_episodes`, with the counts behind them
+    (``crashes``, ``episodes``, ``km``)."""
+    rows = validation_episodes(policy, cfg, episodes)
+    distance = rows.avg_speed * rows.steps / cfg.env.policy_frequency
+    return {
+        "collision_pct": 100.0 * float(rows.crashed.mean()),
+        "per_100km": per_100km(rows.crashed.to_numpy(), distance.to_numpy())[0],
+        "avg_speed": float(rows.avg_speed.mean()),
+        "crashes": int(rows.crashed.sum()),
+        "episodes": len(rows),
+        "km": float(distance.sum()) / 1000.0,
+    }
+
+
+def versus_rule(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float]:
+    """:func:`validation_figures` of ``policy`` and, prefixed ``rule_``, of the rule-based ego
+    on the same episodes."""
+    mine = validation_figures(policy, cfg, episodes)
+    rule = validation_figures(baseline("rule", env_config(training_config(cfg))), cfg, episodes)
+    return {**mine, **{f"rule_{k}": v for k, v in rule.items()}}
+
+
+def split_rule(figures: dict[str, float], prefix: str = "") -> tuple[dict, dict]:
+    """The policy's and the rule-based ego's figures out of :func:`versus_rule`'s keys (with
+    ``prefix``, e.g. ``stock_``)."""
+    keys = ("collision_pct", "per_100km", "avg_speed")
+    return (
+        {k: figures[f"{prefix}{k}"] for k in keys},
+        {k: figures[f"{prefix}rule_{k}"] for k in keys},
+    )
+
+
+def rule_score(cfg: SweepConfig, figures: dict[str, float]) -> float:
+    """Mode ``rule``: :func:`bgap.analysis.stats.rule_objective` of both policies' figures
+    (keys of :func:`versus_rule`, the default policy's prefixed ``stock_``)."""
+    return rule_objective(*split_rule(figures), *split_rule(figures, "stock_"),
+                          floor=cfg.rule_floor, margin=cfg.stock_margin)  # fmt: skip
 
 
 def objective(cfg: SweepConfig, crash: float, speed: float, idle_speed: float) -> float:
@@ -174,6 +229,12 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
     trial.set_user_attr("overrides", overrides)
 
     def score(model, c, episodes):
+        if cfg.mode == "rule":  # the behaviour-rich half of the objective, while it trains
+            mine, rule = split_rule(versus_rule(model, c, episodes))
+            need = cfg.rule_floor * rule["avg_speed"]
+            if mine["avg_speed"] < need:
+                return 1000.0 + 100.0 * (need - mine["avg_speed"]) / need
+            return mine["per_100km"] - rule["per_100km"]
         idle = _validation(baseline("idle"), c, episodes)[1]
         return objective(cfg, *evaluate_model(model, c, episodes), idle)
 
@@ -183,6 +244,15 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
         callbacks.append(PruneCallback(trial, tcfg, every, score))
     train(tcfg, progress=False, callbacks=callbacks)
     model = load_model(run_dir / "model.zip")  # of the trial's algorithm (agent.algo)
+    if cfg.mode == "rule":  # the same recipe's default policy, in stock traffic
+        stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
+        train(stock, progress=False)
+        figures = versus_rule(model, tcfg, cfg.sweep_eval_episodes)
+        stock_figures = versus_rule(load_model(stock.run_dir), stock, cfg.sweep_eval_episodes)
+        figures |= {f"stock_{k}": v for k, v in stock_figures.items()}
+        for key, value in figures.items():
+            trial.set_user_attr(key, value)
+        return rule_score(cfg, figures)
     crash, speed = evaluate_model(model, tcfg, cfg.sweep_eval_episodes)
     idle_crash, idle_speed = _validation(baseline("idle"), tcfg, cfg.sweep_eval_episodes)
     for key, value in (
@@ -267,7 +337,9 @@ def write_outputs(
                 **{
                     k: t.user_attrs.get(k)
                     for k in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed")
+                    if cfg.mode != "rule"
                 },
+                **{k: t.user_attrs.get(k) for k in RULE_KEYS if cfg.mode == "rule"},
                 "run_dir": t.user_attrs.get("run_dir"),
             }
             for t in done
@@ -277,7 +349,8 @@ def write_outputs(
     chosen = chosen_trial(study, cfg)
     paths = {"trials": out / "trials.csv"}
     fig, ax = plt.subplots(figsize=(5, 3.6))
-    ax.scatter(table.avg_speed, table.collision_pct, c="lightgray", label="trials")
+    y = "per_100km" if cfg.mode == "rule" else "collision_pct"
+    ax.scatter(table.avg_speed, table[y], c="lightgray", label="trials")
     if cfg.mode == "multi":
         front = {t.number for t in study.best_trials}
         table["pareto"] = table.trial.isin(front)
@@ -294,9 +367,15 @@ def write_outputs(
         if cfg.mode == "constrained":
             ax.axvline(cfg.speed_floor * idle_speed, ls="--", color="tab:blue", lw=0.8,
                        label=f"{cfg.speed_floor:g} x idle speed")  # fmt: skip
+    if cfg.mode == "rule" and len(table):  # the yardstick: the rule-based ego
+        rule_speed = float(table.rule_avg_speed.mean())
+        ax.scatter([rule_speed], [float(table.rule_per_100km.mean())], marker="s",
+                   color="tab:green", label="rule-based ego", zorder=4)  # fmt: skip
+        ax.axvline(cfg.rule_floor * rule_speed, ls="--", color="tab:green", lw=0.8,
+                   label=f"{cfg.rule_floor:g} x its speed")  # fmt: skip
     ax.scatter(
         [chosen.user_attrs["avg_speed"]],
-        [chosen.user_attrs["collision_pct"]],
+        [chosen.user_attrs[y]],
         marker="*",
         s=200,
         color="k",
@@ -304,7 +383,11 @@ def write_outputs(
         zorder=5,
     )
     ax.set_xlabel("validation mean speed m/s (maximise)")
-    ax.set_ylabel("validation collision % (minimise)")
+    ax.set_ylabel(
+        "behaviour-rich policy's validation\ncollisions per 100 km (minimise)"
+        if cfg.mode == "rule"
+        else "validation collision % (minimise)"
+    )
     ax.set_title(f"{cfg.sweep} sweep ({cfg.mode}), {cfg.env.name}")
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -20,6 +20,11 @@ from __future__ import annotations
 import pickle
 import warnings
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import ExitStack
+from dataclasses import replace
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +32,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 from stable_baselines3.common.vec_env import VecMonitor
-from tqdm import TqdmExperimentalWarning
+from tqdm import TqdmExperimentalWarning, tqdm
 
 from bgap.agents.monitor import (
     SB3Monitor,
@@ -37,12 +42,13 @@ from bgap.agents.monitor import (
 from bgap.agents.observation import with_features
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
-from bgap.common.runs import exclusive, write_atomic
+from bgap.common.runs import exclusive, held_by_parent, write_atomic
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
     build_model,
     member_configs,
+    member_dirs,
     model_class,
     open_run_dir,
     read_checkpoint,
@@ -172,6 +178,47 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
     return run_dir
 
 
+def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]:
+    """Several SB3 trainings (:func:`member_configs`), ``workers`` at a time, each in its own
+    process and run folder (:func:`member_dirs`, locked here for all of them); returns the
+    run folders in ``cfgs``' order. Each training seeds itself, so it learns the same as
+    alone. One training, or ``workers=1``: in this process, with its progress bar. (The
+    batched learner, DQN only, is faster where it applies.)"""
+    dirs = member_dirs(cfgs)
+    cfgs = [replace(c, run_dir=str(d)) for c, d in zip(cfgs, dirs, strict=True)]
+    if workers <= 1 or len(cfgs) == 1:
+        return [train(c) for c in cfgs]
+    # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
+    context = get_context("spawn")
+    with ExitStack() as locks, ProcessPoolExecutor(min(workers, len(cfgs)), context) as pool:
+        for d in sorted(set(dirs)):
+            locks.enter_context(exclusive(d))
+        futures = {pool.submit(_train_worker, c, dirs): c for c in cfgs}
+        bar = tqdm(total=len(cfgs), desc=f"{len(cfgs)} trainings, {workers} at a time",
+                   unit="training")  # fmt: skip
+        try:
+            for future in as_completed(futures):
+                c = futures[future]
+                bar.write(f"finished: {c.policy} seed {c.seed} in {future.result()}")
+                bar.update()
+        except (KeyboardInterrupt, BrokenProcessPool) as stop:
+            pool.shutdown(wait=True, cancel_futures=True)
+            why = "stopped" if isinstance(stop, KeyboardInterrupt) else "lost a process"
+            raise Interrupted(
+                f"trainings {why}; each keeps its last checkpoint in its run folder "
+                f"({dirs[0]}, ...); continue with the same command and resume=true"
+            ) from None
+        finally:
+            bar.close()
+    return dirs
+
+
+def _train_worker(cfg: ExperimentConfig, held: list[Path]) -> Path:
+    held_by_parent(held)  # train_side_by_side locked the run folders for this process
+    torch.set_num_threads(1)
+    return train(cfg, progress=False)
+
+
 @app("train", "bgap.train", SCHEMAS)
 def main(dcfg: DictConfig) -> None:
     cfg: ExperimentConfig = load(dcfg)
@@ -186,7 +233,7 @@ def main(dcfg: DictConfig) -> None:
     if cfg.learner == "batched":
         dirs = train_batched(cfgs)
     else:
-        dirs = [train(c) for c in cfgs]
+        dirs = train_side_by_side(cfgs, cfg.workers)
     for run_dir in dirs:
         print(f"model: {run_dir / 'model.zip'}")
 

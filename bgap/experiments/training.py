@@ -181,6 +181,18 @@ def member_configs(cfg: ExperimentConfig) -> list[ExperimentConfig]:
     ]
 
 
+def member_dirs(cfgs: list[ExperimentConfig]) -> list[Path]:
+    """The run folders of :func:`member_configs`' trainings: each its own under ``root``;
+    with ``run_dir`` and several trainings (or ``seeds=``/``policies=``), one folder per
+    training under it, named as the pipeline names its runs (``<density>-<policy>-s<seed>``;
+    the settings are in each folder's config.yaml, which refuses another training), so the
+    layout does not depend on how many there are."""
+    first = cfgs[0]
+    if first.run_dir and (len(cfgs) > 1 or first.seeds or first.policies):
+        return [Path(first.run_dir) / f"{c.env.name}-{c.policy}-s{c.seed}" for c in cfgs]
+    return [run_dir_for(c) for c in cfgs]
+
+
 def read_checkpoint(ckpt: Path, read: Callable[[], T]) -> T:
     """``read()`` of files in the checkpoint folder ``ckpt``; a damaged file is one line
     saying so and how to go on, not a traceback."""
