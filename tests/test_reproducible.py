@@ -18,11 +18,12 @@ RERUNNING = {
       for density in ("sparse", "dense")),
     *(f"evaluate@{arm}" for arm in ("main", "authors", "mix0", "mix50", "mix100")),
     "figures",
+    *(f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")),
 }  # fmt: skip
 """Stages whose committed lock predates code that changes what they compute, being rerun:
-the study's retraining with the sum-tree sampler and its evaluation per arm (issue 38).
-Each must still be stale (a rerun stage leaves this set in the same commit); no other
-stage may be."""
+the study's retraining with the sum-tree sampler and its evaluation per arm (issue 38);
+and stages not run yet: issue 32's recipe per learner. Each must still be stale (a rerun
+stage leaves this set in the same commit); no other stage may be."""
 
 
 def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_path):

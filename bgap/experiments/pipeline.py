@@ -167,6 +167,8 @@ def rehearsal(params: dict) -> None:
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
+    params["learner_recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
+    params["learner_recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
     params["parity"] = {"episodes": 2, "duration": 2}
     params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
     search = params["cmetric_search"]
