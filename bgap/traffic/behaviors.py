@@ -12,6 +12,8 @@ could never overspeed on a 30 m/s highway.
 
 from __future__ import annotations
 
+import copy
+import functools
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any, Optional
@@ -88,8 +90,17 @@ class BehaviorConfig:
 
 
 def paper_behavior() -> BehaviorConfig:
-    """Table I of the paper, from its one home: the packaged preset ``behavior/paper.yaml``."""
-    return load_preset(BehaviorConfig, preset_path("behavior", "paper"))
+    """Table I of the paper, from its one home: the packaged preset ``behavior/paper.yaml``
+    (read once per version of the file: every environment built takes these defaults, and
+    OmegaConf's validated load costs ~25 ms, a sixth of a sparse evaluation)."""
+    path = preset_path("behavior", "paper")
+    stat = path.stat()
+    return copy.deepcopy(_read_paper(str(path), stat.st_mtime_ns, stat.st_size))
+
+
+@functools.lru_cache(maxsize=4)
+def _read_paper(path: str, mtime_ns: int, size: int) -> BehaviorConfig:
+    return load_preset(BehaviorConfig, path)
 
 
 # Field of DriverParams -> IDMVehicle attribute, with the conversion from paper units (also
