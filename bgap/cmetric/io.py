@@ -1,137 +1,28 @@
-"""Reading and validating trajectory tables for CMetric.
-
-A trajectory table is tidy: one row per vehicle and frame. Columns (aliases in brackets):
-
-- ``vehicle_id`` [``id``, ``track_id``]: vehicle identity within a scene;
-- ``frame`` and/or ``time`` [``t``]: at least one; frames are derived from sorted unique
-  times when absent, times from frames at ``fps`` when absent;
-- ``x``, ``y``: position [m];
-- optional ``vx``, ``vy`` [m/s]: finite differences of position per vehicle when absent;
-- optional ``episode`` [``scene``]: independent scenes (graphs never join two scenes); a
-  table with both columns is read by ``episode`` (``scene`` is then ignored);
-- optional ``label``: ground-truth class, carried through to the scores.
-
-The Parquet written by :mod:`bgap.sim.recorder` is read as is.
+"""Reading and validating trajectory tables for CMetric: the one trajectory reader
+(:func:`bgap.common.tables.load_trajectories`, schema there) and what CMetric needs beyond
+it (:func:`check_scoreable`). The Parquet written by :mod:`bgap.sim.recorder` is read as is.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import numpy as np
 import pandas as pd
 
 from bgap.common.errors import TrajectoryError
-from bgap.common.tables import read_table
+from bgap.common.tables import (
+    ALIASES,
+    finite_difference_velocity,
+    load_trajectories,
+    read_table,
+)
 
-ALIASES = {"id": "vehicle_id", "track_id": "vehicle_id", "t": "time", "scene": "episode"}
-
-
-def load_trajectories(
-    source: str | Path | pd.DataFrame, fps: float = 15.0, extra: tuple[str, ...] = ()
-) -> pd.DataFrame:
-    """Read, validate and complete a trajectory table.
-
-    Returns a copy with columns ``episode, frame, time, vehicle_id, x, y, vx, vy`` (plus
-    ``label`` and the ``extra`` columns when given), sorted by episode, vehicle and frame.
-
-    Raises :class:`TrajectoryError` for missing columns, NaN or infinite values, duplicate
-    (episode, frame, vehicle) rows, or a time that does not increase with the frame.
-    Vehicles entering and leaving the scene are normal.
-    """
-    df = read_table(source)
-    if "episode" in df.columns and "scene" in df.columns:
-        df = df.drop(columns="scene")  # documented precedence: episode
-    df = df.rename(columns=lambda c: ALIASES.get(str(c), str(c)))
-    if df.columns.duplicated().any():
-        twice = sorted(set(df.columns[df.columns.duplicated()]))
-        raise TrajectoryError(
-            f"columns {twice} are given twice (under their name and an alias, "
-            f"{ALIASES}); keep one of each"
-        )
-    missing = [c for c in ("vehicle_id", "x", "y") if c not in df.columns]
-    if "frame" not in df.columns and "time" not in df.columns:
-        missing.append("frame or time")
-    if missing:
-        raise TrajectoryError(
-            f"trajectory table is missing column(s) {missing}; found {list(df.columns)}. "
-            "Needed: vehicle_id, frame or time, x, y (optional vx, vy, episode, label)"
-        )
-    if "episode" not in df.columns:
-        df["episode"] = 0
-    numeric = [c for c in ("frame", "time", "x", "y", "vx", "vy") if c in df.columns]
-    for col in numeric:
-        values = pd.to_numeric(df[col], errors="coerce").to_numpy(dtype=float)
-        bad = ~np.isfinite(values)
-        if bad.any():
-            rows = np.flatnonzero(bad)[:5].tolist()
-            raise TrajectoryError(
-                f"column {col!r} has {int(bad.sum())} NaN, infinite or non-numeric value(s) "
-                f"(first rows {rows}); drop or interpolate them before scoring"
-            )
-        df[col] = values
-    if "frame" not in df.columns:
-        _refuse_own_clocks(df)
-        times = np.unique(df["time"].to_numpy())
-        df["frame"] = np.searchsorted(times, df["time"].to_numpy())
-    if "time" not in df.columns:
-        df["time"] = df["frame"] / fps
-    df["frame"] = df["frame"].astype(np.int64)
-
-    dup = df.duplicated(["episode", "frame", "vehicle_id"])
-    if dup.any():
-        first = df.loc[dup, ["episode", "frame", "vehicle_id"]].iloc[0].to_dict()
-        raise TrajectoryError(
-            f"{int(dup.sum())} duplicate (episode, frame, vehicle_id) row(s), first {first}; "
-            "each vehicle may appear once per frame"
-        )
-    df = df.sort_values(["episode", "frame", "vehicle_id"], kind="stable")
-    per_frame = df.groupby(["episode", "frame"], sort=True)["time"]
-    if (per_frame.nunique() > 1).any():
-        raise TrajectoryError("rows of one frame carry different times; one time per frame")
-    frame_time = per_frame.first()
-    steps = frame_time.groupby(level=0).diff().dropna()
-    if (steps <= 0).any():
-        where = steps[steps <= 0].index[0]
-        raise TrajectoryError(
-            f"time is not increasing with frame (episode {where[0]}, frame {where[1]}); "
-            "sort the log or fix its clock"
-        )
-
-    if df.empty:
-        raise TrajectoryError("trajectory table has no rows")
-    df = df.sort_values(["episode", "vehicle_id", "frame"], kind="stable").reset_index(drop=True)
-    if "vx" not in df.columns or "vy" not in df.columns:
-        df["vx"], df["vy"] = finite_difference_velocity(df)
-    keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
-    keep += [c for c in ("label", *extra) if c in df.columns]
-    return df[keep]
-
-
-def _refuse_own_clocks(df: pd.DataFrame) -> None:
-    """Refuse a log whose vehicles keep their own clocks (sampled at one rate, each with its
-    own offset): frames made from its times would each hold one vehicle, and no traffic
-    graph would ever join two. Resampling would invent positions; the fix is the user's."""
-    step = df.groupby(["episode", "vehicle_id"])["time"].diff().median()
-    if not np.isfinite(step) or step <= 0:
-        return
-    # each vehicle's offset within a step, as a circular mean (times k * step in floating
-    # point fall just under or over a step: phases near 1 and near 0 are one clock)
-    turn = np.exp(2j * np.pi * df["time"].to_numpy() / step)
-    keys = [df["episode"].to_numpy(), df["vehicle_id"].to_numpy()]
-    mean = pd.Series(turn).groupby(keys).mean().to_numpy()
-    offsets = np.sort(np.mod(np.angle(mean) / (2 * np.pi), 1.0))
-    # on the circle of one step (0.0 and 0.99 are the same clock): the arc that holds every
-    # vehicle's offset is one step less the widest gap between neighbouring offsets
-    gaps = np.diff(np.append(offsets, offsets[0] + 1.0))
-    spread = 1.0 - gaps.max()
-    if spread > 0.05:  # more than 5% of a step apart
-        raise TrajectoryError(
-            f"the vehicles keep their own clocks: sampled every {step:g} s, at offsets up to "
-            f"{spread * step:.3g} s apart, so no two share a time; "
-            "resample every vehicle to common times (e.g. interpolate at t = k * step) or "
-            "give a frame column"
-        )
+__all__ = [
+    "ALIASES",
+    "TrajectoryError",
+    "check_scoreable",
+    "finite_difference_velocity",
+    "load_trajectories",
+    "read_table",
+]
 
 
 def check_scoreable(df: pd.DataFrame) -> None:
@@ -149,16 +40,3 @@ def check_scoreable(df: pd.DataFrame) -> None:
             "every scene has a single vehicle; CMetric scores a vehicle against its "
             "neighbours in the traffic graph and needs at least two vehicles in a scene"
         )
-
-
-def finite_difference_velocity(df: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Central differences inside each vehicle's track, one-sided at its ends (np.gradient)."""
-    vx = np.zeros(len(df))
-    vy = np.zeros(len(df))
-    for _, idx in df.groupby(["episode", "vehicle_id"], sort=False).indices.items():
-        if len(idx) < 2:
-            continue
-        t = df["time"].to_numpy()[idx]
-        vx[idx] = np.gradient(df["x"].to_numpy()[idx], t)
-        vy[idx] = np.gradient(df["y"].to_numpy()[idx], t)
-    return vx, vy

@@ -18,7 +18,9 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
+from bgap.envs.replay import ReplayScene, log_contact
 from bgap.traffic.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
+from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import REWARD_TERMS, check_config, contact_dx, default_config
 
 FrameListener = Callable[["BehaviorHighwayEnv"], None]
@@ -63,6 +65,13 @@ class BehaviorHighwayEnv(HighwayEnv):
         check_config(self.config)
         # highway-env reads the perception distance from this class constant at observe time.
         self.PERCEPTION_DISTANCE = float(self.config["perception_radius"])
+        self.replay, self.replay_scene = None, None
+        traffic = self.config.get("traffic") or {}
+        if traffic.get("source") == "replay":  # the road takes the table's lanes
+            self.replay = load_replay(
+                traffic["table"], self.config["simulation_frequency"], traffic["min_duration"]
+            )
+            self.config["lanes_count"] = self.replay.lanes
 
     def define_spaces(self) -> None:
         super().define_spaces()
@@ -95,7 +104,11 @@ class BehaviorHighwayEnv(HighwayEnv):
         )
 
     def _create_vehicles(self) -> None:
-        """highway-v0's spawning, with exactly round(mix * n) aggressive drivers at random."""
+        """highway-v0's spawning, with exactly round(mix * n) aggressive drivers at random;
+        or a replay's window (:mod:`bgap.envs.replay`)."""
+        if self.replay is not None:
+            self._create_replay()
+            return
         n = int(self.config["vehicles_count"])
         self.mix = episode_mix(self.config, self._mix_rng)
         n_aggressive = count_aggressive(self.mix, n)
@@ -119,6 +132,35 @@ class BehaviorHighwayEnv(HighwayEnv):
             vehicle.bgap_id = i
             self.road.vehicles.append(vehicle)
 
+    def _create_replay(self) -> None:
+        """The ego in place of a recorded vehicle, the window's other vehicles replayed."""
+        traffic = self.config["traffic"]
+        per_step = int(self.config["simulation_frequency"] // self.config["policy_frequency"])
+        longest = int(round(self.config["duration"] * self.config["simulation_frequency"]))
+        window = self.replay.window(
+            self.np_random, longest, traffic["vehicle"], traffic["start"], traffic["scene"]
+        )
+        self.replay_steps = window.frames // per_step  # policy steps the window holds
+        scene = ReplayScene(
+            self.road, window, self.config["behavior"], traffic["mode"] == "reactive",
+            self.np_random,
+        )  # fmt: skip
+        position, heading, speed = scene.ego_state()
+        ego = self.action_type.vehicle_class(self.road, position, heading, speed)
+        ego.bgap_label, ego.bgap_id, ego.color = EGO, int(window.scene.ids[window.ego]), COLORS[EGO]
+        self.controlled_vehicles = [ego]
+        self.road.vehicles.insert(0, ego)
+        self.replay_scene = scene
+        labels = [getattr(v, "bgap_label", None) for v in self.road.vehicles[1:]]
+        self.mix = float(np.mean([label == AGGRESSIVE for label in labels])) if labels else 0.0
+
+    def _is_truncated(self) -> bool:
+        if self.replay is not None and self.steps >= self.replay_steps * int(
+            self.config["simulation_frequency"] // self.config["policy_frequency"]
+        ):
+            return True  # the replaced vehicle's window ends
+        return super()._is_truncated()
+
     # ---------------------------------------------------------------- stepping
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         self._target_lane_before = self.vehicle.target_lane_index
@@ -126,6 +168,8 @@ class BehaviorHighwayEnv(HighwayEnv):
 
     def _after_frame(self) -> None:
         self.frame += 1
+        if self.replay_scene is not None:
+            self.replay_scene.after_frame()
         self._notify()
 
     def _notify(self) -> None:
@@ -184,6 +228,8 @@ class BehaviorHighwayEnv(HighwayEnv):
                 "observed_count": len(seen),
             }
         )
+        if self.replay is not None:  # the ego's crash partner could not react (log mode)
+            info["log_contact"] = log_contact(self.road.vehicles)
         return info
 
 

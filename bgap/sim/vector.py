@@ -25,7 +25,7 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.common.errors import check
+from bgap.common.errors import ConfigError, check
 from bgap.sim import core
 from bgap.sim.core import (
     ACC,
@@ -124,6 +124,11 @@ def check_supported(config: dict[str, Any]) -> None:
     sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
     if sim % pol:
         raise ValueError("simulation_frequency must be a multiple of policy_frequency")
+    if (config.get("traffic") or {}).get("source", "simulated") != "simulated":
+        raise ConfigError(
+            "backend=vector does not replay traffic yet (issue 37); use backend=highway for "
+            "traffic=replay"
+        )
 
 
 @dataclass

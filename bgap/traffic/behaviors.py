@@ -164,6 +164,17 @@ def create_driver(
     """
     stock = is_stock(params)
     vehicle = (IDMVehicle if stock else BehaviorVehicle).create_random(road, spacing=spacing)
+    set_driver_params(vehicle, params, rng)
+    vehicle.bgap_label = label
+    vehicle.color = COLORS[label]
+    return vehicle
+
+
+def set_driver_params(
+    vehicle: IDMVehicle, params: Mapping[str, Any], rng: np.random.Generator
+) -> None:
+    """Give ``vehicle`` a class's parameters (unset ones: highway-env's; no ``delta``: its
+    draw in [3.5, 4.5]; ``v0``: the desired speed, spread per vehicle)."""
     if params.get("delta") is None:
         vehicle.randomize_behavior()  # highway-env's DELTA draw in [3.5, 4.5]
     for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
@@ -172,9 +183,6 @@ def create_driver(
     if params.get("v0") is not None:
         spread = float(params.get("v0_spread") or 0.0)
         vehicle.target_speed = float(params["v0"]) * rng.uniform(1 - spread, 1 + spread)
-    vehicle.bgap_label = label
-    vehicle.color = COLORS[label]
-    return vehicle
 
 
 def count_aggressive(mix: float, n: int) -> int:

@@ -22,6 +22,7 @@ from bgap.common.errors import ConfigError, check
 from bgap.common.presets import load_preset, preset_path
 from bgap.common.vocab import CLASSES, MIX_SAMPLING
 from bgap.traffic.behaviors import BehaviorConfig, paper_behavior
+from bgap.traffic.replay import TrafficConfig
 
 
 @dataclass
@@ -242,6 +243,9 @@ def check_config(config: dict[str, Any]) -> None:
         sim,
         f"must be a multiple of policy_frequency ({pol})",
     )
+    traffic = config.get("traffic")
+    if traffic:  # replayed traffic (bgap.traffic.replay): the schema's checks
+        TrafficConfig(**{k: v for k, v in traffic.items() if k != "name"})
 
 
 def env_preset(name: str) -> EnvConfig:

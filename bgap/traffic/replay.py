@@ -1,0 +1,275 @@
+"""Replayed traffic: a trajectory table as the ego's surroundings (issue 37).
+
+    traffic=replay traffic.table=PATH traffic.mode=log|reactive
+
+Any table the trajectory reader takes (:func:`bgap.common.tables.load_trajectories`) with a
+``lane`` column. Its vehicles are resampled to the simulation frequency; an episode is a
+window of one scene in which the ego takes the place of one recorded vehicle (removed from
+the replay) at that vehicle's position and speed, and lasts while that vehicle stays in the
+recorded section: at most ``env.duration``, at least ``traffic.min_duration`` (shorter
+candidates are never drawn). ``log``: recorded vehicles follow their log whatever the ego
+does. ``reactive``: a recorded vehicle whose leader is the ego, or a vehicle that already
+switched, closer than its IDM desired gap switches to IDM for the rest of the episode
+(longitudinal only, in its lane; no MOBIL), with its class's parameters (a label that is not
+a bgap class: the conservative one's).
+
+This module owns the table's preparation, shared by both backends; the simulators replay
+it (:mod:`bgap.envs.highway`, the reference). Our choices, documented in docs/environment.md:
+linear interpolation between recorded samples; lanes ranked by their median lateral
+position and placed at highway-env's 4 m spacing (a table recorded by bgap keeps its
+coordinates exactly); a window drawn per episode from the episode's seed (a vehicle among
+the candidates, then its start) so every policy meets the same windows.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import pandas as pd
+
+from bgap.common.errors import TrajectoryError, check
+from bgap.common.tables import load_trajectories
+from bgap.common.vocab import LANE_WIDTH
+
+SOURCES = ("simulated", "replay")
+MODES = ("log", "reactive")
+MAX_JUMP_X, MAX_JUMP_Y = 20.0, LANE_WIDTH
+"""A recorded vehicle moving more than these [m] between two samples is a broken track."""
+
+
+@dataclass
+class TrafficConfig:
+    """Where the background traffic comes from (config group ``traffic``)."""
+
+    name: str = "simulated"
+    source: str = "simulated"
+    """``simulated`` (bgap's driver classes, the default) or ``replay`` (a trajectory table)."""
+    table: Optional[str] = None
+    """``replay``: the trajectory table (.parquet or .csv, with a ``lane`` column)."""
+    mode: str = "log"
+    """``replay``: ``log`` (recorded vehicles ignore the ego) or ``reactive`` (they switch
+    to IDM behind the ego)."""
+    min_duration: float = 20.0
+    """``replay``: shortest episode [s]; recorded vehicles in the section for less are never
+    replaced by the ego."""
+    vehicle: Optional[int] = None
+    """``replay``: the recorded vehicle (``vehicle_id``) the ego replaces; null: drawn per
+    episode."""
+    start: Optional[float] = None
+    """``replay``: the window's start [s] after the scene's first sample; null: drawn."""
+    scene: Optional[int] = None
+    """``replay``: the scene (``episode`` column); null: drawn with the vehicle."""
+
+    def __post_init__(self) -> None:
+        check(self.source in SOURCES, "traffic.source", self.source, f"use one of {SOURCES}")
+        check(self.mode in MODES, "traffic.mode", self.mode, f"use one of {MODES}")
+        check(
+            self.source != "replay" or bool(self.table),
+            "traffic.table",
+            self.table,
+            "traffic=replay needs a trajectory table: traffic.table=PATH (.parquet or .csv)",
+        )
+        check(
+            np.isfinite(self.min_duration) and self.min_duration > 0,
+            "traffic.min_duration",
+            self.min_duration,
+            "must be a positive number of seconds",
+        )
+        check(
+            self.start is None or (np.isfinite(self.start) and self.start >= 0),
+            "traffic.start",
+            self.start,
+            "must be >= 0 s or null",
+        )
+
+    def as_config(self) -> dict:
+        """The environment config's ``traffic`` entry (absent for simulated traffic, so
+        configs made before replay existed stay the same)."""
+        keys = ("source", "table", "mode", "min_duration", "vehicle", "start", "scene")
+        return {k: getattr(self, k) for k in keys}
+
+
+@dataclass
+class Scene:
+    """One recorded scene resampled to the simulation frequency: ``state[k, v]`` is vehicle
+    ``v``'s x, y, vx, vy at frame k (NaN while it is not in the section)."""
+
+    number: int
+    state: np.ndarray
+    ids: np.ndarray
+    labels: list[Optional[str]]
+    present: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.present = np.isfinite(self.state[:, :, 0])
+
+    def span(self, v: int) -> tuple[int, int]:
+        """First and last frame of vehicle ``v`` (it is present in between: tracks have no
+        holes after resampling)."""
+        frames = np.flatnonzero(self.present[:, v])
+        return int(frames[0]), int(frames[-1])
+
+
+@dataclass
+class Window:
+    """An episode's piece of a scene: the ego replaces vehicle ``ego`` from frame ``start``
+    for ``frames`` frames (the episode ends there, or earlier at ``env.duration``)."""
+
+    scene: Scene
+    ego: int
+    start: int
+    frames: int
+
+
+class Replay:
+    """A trajectory table prepared for replay at ``simulation_frequency`` (module
+    docstring); refuses, with one line, a table no episode can be drawn from."""
+
+    def __init__(
+        self, source: str | Path | pd.DataFrame, simulation_frequency: float, min_duration: float
+    ) -> None:
+        self.dt = 1.0 / float(simulation_frequency)
+        self.min_frames = int(np.ceil(min_duration * simulation_frequency - 1e-9))
+        name = source if isinstance(source, (str, Path)) else "the table"
+        df = load_trajectories(source, fps=simulation_frequency, extra=("lane",))
+        if "lane" not in df.columns:
+            raise TrajectoryError(
+                f"{name}: replay needs a lane column (the lane index of each row); found "
+                f"{list(df.columns)}"
+            )
+        if df.groupby("episode").frame.nunique().max() < 2:
+            raise TrajectoryError(f"{name}: every scene has a single frame; replay needs tracks")
+        _refuse_jumps(df, name)
+        if float(np.median(df.vx)) < 0:
+            raise TrajectoryError(
+                f"{name}: its vehicles drive towards -x (median vx {np.median(df.vx):.1f} m/s); "
+                "mirror x and vx (and order the lanes) before replaying it"
+            )
+        self.lane_ranks, y = _lanes(df)
+        self.lanes = len(self.lane_ranks)
+        df = df.assign(y=y, x=df.x - min(0.0, float(df.x.min())))
+        self.scenes = [self._scene(int(k), g) for k, g in df.groupby("episode", sort=True)]
+        self.candidates = [
+            (s, v)
+            for s, scene in enumerate(self.scenes)
+            for v in range(len(scene.ids))
+            if np.diff(scene.span(v))[0] >= self.min_frames
+        ]
+        if not self.candidates:
+            raise TrajectoryError(
+                f"{name}: no recorded vehicle stays {min_duration:g} s in the section (the "
+                "shortest episode); lower traffic.min_duration or give a longer recording"
+            )
+        if max(len(scene.ids) for scene in self.scenes) < 2:
+            raise TrajectoryError(f"{name}: every scene holds one vehicle; nothing to replay")
+
+    def _scene(self, number: int, g: pd.DataFrame) -> Scene:
+        t0 = float(g.time.min())
+        total = int(np.floor((float(g.time.max()) - t0) / self.dt + 1e-9)) + 1
+        grid = t0 + np.arange(total) * self.dt
+        tracks = list(g.groupby("vehicle_id", sort=True))
+        state = np.full((total, len(tracks), 4), np.nan)
+        labels: list[Optional[str]] = []
+        for v, (_, track) in enumerate(tracks):
+            t = track.time.to_numpy()
+            inside = (grid >= t[0] - 1e-9) & (grid <= t[-1] + 1e-9)
+            for c, col in enumerate(("x", "y", "vx", "vy")):
+                state[inside, v, c] = np.interp(grid[inside], t, track[col].to_numpy())
+            labels.append(str(track.label.iloc[0]) if "label" in track else None)
+        ids = np.array([vid for vid, _ in tracks])
+        return Scene(number, state, ids, labels)
+
+    def window(
+        self,
+        rng: np.random.Generator,
+        max_frames: int,
+        vehicle: Optional[int] = None,
+        start: Optional[float] = None,
+        scene: Optional[int] = None,
+    ) -> Window:
+        """The next episode's window, drawn from ``rng`` where not fixed: a candidate vehicle
+        (uniformly), then its start (uniformly among those leaving at least the shortest
+        episode). ``max_frames``: the episode's longest (``env.duration``)."""
+        candidates = [
+            (s, v)
+            for s, v in self.candidates
+            if (scene is None or self.scenes[s].number == scene)
+            and (vehicle is None or self.scenes[s].ids[v] == vehicle)
+        ]
+        if not candidates:
+            raise TrajectoryError(
+                f"traffic.vehicle={vehicle}, traffic.scene={scene}: no such recorded vehicle "
+                f"stays {self.min_frames * self.dt:g} s in the section; leave them null to "
+                "draw one"
+            )
+        s, v = candidates[int(rng.integers(len(candidates)))]
+        first, last = self.scenes[s].span(v)
+        if start is None:
+            begin = first + int(rng.integers(last - first - self.min_frames + 1))
+        else:
+            begin = first + int(round(start / self.dt))
+            if not first <= begin <= last - self.min_frames:
+                raise TrajectoryError(
+                    f"traffic.start={start}: vehicle {self.scenes[s].ids[v]} is in the section "
+                    f"from {first * self.dt:g} s to {last * self.dt:g} s, so a window of at "
+                    f"least {self.min_frames * self.dt:g} s starts at most at "
+                    f"{(last - self.min_frames) * self.dt:g} s"
+                )
+        return Window(self.scenes[s], v, begin, min(last - begin, max_frames))
+
+
+def _refuse_jumps(df: pd.DataFrame, name: object) -> None:
+    """A vehicle that moves more than a lane width sideways or 20 m along the road between
+    two consecutive samples is two tracks under one id."""
+    keys = ["episode", "vehicle_id"]
+    dx = df.groupby(keys).x.diff().abs()
+    dy = df.groupby(keys).y.diff().abs()
+    bad = (dx > MAX_JUMP_X) | (dy > MAX_JUMP_Y)
+    if bad.any():
+        row = df[bad].iloc[0]
+        raise TrajectoryError(
+            f"{name}: vehicle {row.vehicle_id} (scene {row.episode}) jumps "
+            f"{dx[bad].iloc[0]:.1f} m along and {dy[bad].iloc[0]:.1f} m across the road "
+            f"between two samples at frame {row.frame} (at most {MAX_JUMP_X:g} and "
+            f"{MAX_JUMP_Y:g} m); split or repair that track"
+        )
+
+
+def _lanes(df: pd.DataFrame) -> tuple[dict[int, int], np.ndarray]:
+    """The table's lanes ranked by median lateral position, and every row's y on the
+    simulator's road: the lane's centre at ``LANE_WIDTH * rank`` plus the row's offset from
+    its lane's median, scaled by ``LANE_WIDTH`` over the median spacing of the lanes."""
+    lane = pd.to_numeric(df.lane, errors="coerce")
+    if lane.isna().any() or (lane != np.round(lane)).any():
+        raise TrajectoryError("the lane column must hold lane indices (integers) on every row")
+    lane = lane.astype(int)
+    centres = df.y.groupby(lane).median().sort_values()
+    ranks = {int(k): r for r, k in enumerate(centres.index)}
+    on_grid = float(np.median(np.abs(df.y.to_numpy() - LANE_WIDTH * lane.to_numpy()))) < 0.5
+    if on_grid and all(ranks[k] == k for k in ranks):
+        return ranks, df.y.to_numpy()  # highway-env's own lanes (a bgap recording): as is
+    spacing = float(np.median(np.diff(centres.to_numpy()))) if len(centres) > 1 else LANE_WIDTH
+    scale = LANE_WIDTH / spacing if spacing > 0 else 1.0
+    rank = lane.map(ranks).to_numpy()
+    y = LANE_WIDTH * rank + (df.y.to_numpy() - centres.loc[lane].to_numpy()) * scale
+    return ranks, y
+
+
+@functools.lru_cache(maxsize=4)
+def _cached(path: str, mtime_ns: int, size: int, frequency: float, min_duration: float) -> Replay:
+    return Replay(path, frequency, min_duration)
+
+
+def load_replay(table: str, simulation_frequency: float, min_duration: float) -> Replay:
+    """:class:`Replay` of the file ``table``, prepared once per version of the file (every
+    environment of a batch, and every reset, shares it)."""
+    path = Path(table)
+    if not path.exists():
+        raise TrajectoryError(f"traffic.table={table}: no such file")
+    stat = path.stat()
+    return _cached(str(path.resolve()), stat.st_mtime_ns, stat.st_size,
+                   float(simulation_frequency), float(min_duration))  # fmt: skip

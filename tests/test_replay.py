@@ -1,0 +1,107 @@
+"""Replayed traffic (issue 37) on highway-env's road, the reference: an exact replay of a
+recorded episode, the reactive takeover behind a braking ego, and the tables refused."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bgap.agents.policies import rollout
+from bgap.common.errors import TrajectoryError
+from bgap.common.vocab import IDLE, SLOWER
+from bgap.traffic.replay import Replay
+from bgap.traffic.scenario import env_config
+from tests.conftest import make_cfg
+
+
+def _replaying(config: dict, table, **traffic) -> dict:
+    settings = {"source": "replay", "table": str(table), "mode": "log", "min_duration": 5.0,
+                "vehicle": None, "start": None, "scene": None, **traffic}  # fmt: skip
+    return {**config, "traffic": settings}
+
+
+@pytest.mark.parametrize("density", ["sparse", "dense"])
+def test_a_recorded_episode_replays_exactly_around_the_same_ego(tmp_path, density):
+    """An episode recorded with the idle ego, replayed in log mode with the ego put where the
+    recorded ego was and driven idle again: every recorded vehicle at its recorded position,
+    to 1e-9 m, frame after frame, and the ego on its own track (here exactly: the same
+    initial state and actions integrate to the same frames)."""
+    config = env_config(make_cfg(f"env={density}", "env.duration=8"))
+    recorded = rollout(config, "idle", [3], backend="highway", record=True)
+    path = tmp_path / "recorded.parquet"
+    recorded.trajectories.to_parquet(path)
+    replay = _replaying(config, path, vehicle=0, start=0.0)
+    again = rollout(replay, lambda obs: np.full(len(obs), IDLE), [11], backend="highway",
+                    record=True)  # fmt: skip
+    assert again.episodes.steps.tolist() == recorded.episodes.steps.tolist()
+    both = recorded.trajectories.merge(again.trajectories, on=["frame", "vehicle_id"],
+                                       suffixes=("", "_replayed"))  # fmt: skip
+    assert len(both) == len(recorded.trajectories)
+    others = both[both.vehicle_id > 0]
+    assert np.abs(others.x - others.x_replayed).max() < 1e-9
+    assert np.abs(others.y - others.y_replayed).max() < 1e-9
+    ego = both[both.vehicle_id == 0]
+    step = ego.speed.max() / 15.0  # one frame's travel
+    assert np.abs(ego.x - ego.x_replayed).max() <= step
+    assert np.abs(ego.y - ego.y_replayed).max() <= step
+
+
+def _follower_table(path) -> pd.DataFrame:
+    """One lane, 30 s at 15 Hz: vehicle 1 at x = 100 m and vehicle 2 at x = 60 m, both at a
+    steady 20 m/s. The ego takes vehicle 1's place and brakes."""
+    t = np.arange(451) / 15.0
+    rows = [
+        pd.DataFrame({"episode": 0, "frame": np.arange(451), "time": t, "vehicle_id": vid,
+                      "x": x0 + 20.0 * t, "y": 0.0, "vx": 20.0, "vy": 0.0, "lane": 0,
+                      "label": "conservative"})  # fmt: skip
+        for vid, x0 in ((1, 100.0), (2, 60.0))
+    ]
+    table = pd.concat(rows, ignore_index=True)
+    table.to_parquet(path)
+    return table
+
+
+def test_log_mode_runs_into_a_braking_ego_and_reactive_mode_brakes(tmp_path):
+    """The recorded follower cannot react in log mode: it rear-ends the braking ego, and the
+    crash is reported as a contact with a vehicle following its log. In reactive mode it
+    switches to IDM behind the ego and stops in time."""
+    from bgap.envs import make_highway
+
+    path = tmp_path / "follower.parquet"
+    _follower_table(path)
+    config = env_config(make_cfg("env=sparse", "env.duration=30"))
+    ends = {}
+    for mode in ("log", "reactive"):
+        env = make_highway(_replaying(config, path, mode=mode, vehicle=1, start=0.0))
+        env.reset(seed=0)
+        assert env.unwrapped.config["lanes_count"] == 1 and len(env.unwrapped.road.vehicles) == 2
+        for _ in range(30):
+            _, _, terminated, truncated, info = env.step(SLOWER)
+            if terminated or truncated:
+                break
+        ends[mode] = (bool(info["crashed"]), bool(info["log_contact"]))
+        follower = env.unwrapped.road.vehicles[1]
+        ends[mode] += (follower.switched,)
+    assert ends["log"] == (True, True, False)
+    assert ends["reactive"] == (False, False, True)
+
+
+@pytest.mark.parametrize(
+    "edit,message",
+    [
+        (lambda t: t.drop(columns="lane"), "needs a lane column"),
+        (lambda t: t[t.frame == 0], "single frame"),
+        (lambda t: t.assign(x=np.where((t.vehicle_id == 2) & (t.frame == 200), t.x + 30, t.x)),
+         "jumps"),
+        (lambda t: t[t.vehicle_id == 1], "one vehicle"),
+        (lambda t: t[t.frame < 30], "stays 5 s"),
+    ],
+)
+def test_tables_no_episode_can_come_from_are_refused_in_one_line(tmp_path, edit, message):
+    table = edit(_follower_table(tmp_path / "good.parquet"))
+    path = tmp_path / "bad.parquet"
+    table.to_parquet(path)
+    with pytest.raises(TrajectoryError, match=message) as err:
+        Replay(path, 15, 5.0)
+    assert "\n" not in str(err.value)
