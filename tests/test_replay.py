@@ -52,9 +52,20 @@ def _follower_table(path) -> pd.DataFrame:
     steady 20 m/s. The ego takes vehicle 1's place and brakes."""
     t = np.arange(451) / 15.0
     rows = [
-        pd.DataFrame({"episode": 0, "frame": np.arange(451), "time": t, "vehicle_id": vid,
-                      "x": x0 + 20.0 * t, "y": 0.0, "vx": 20.0, "vy": 0.0, "lane": 0,
-                      "label": "conservative"})  # fmt: skip
+        pd.DataFrame(
+            {
+                "episode": 0,
+                "frame": np.arange(451),
+                "time": t,
+                "vehicle_id": vid,
+                "x": x0 + 20.0 * t,
+                "y": 0.0,
+                "vx": 20.0,
+                "vy": 0.0,
+                "lane": 0,
+                "label": "conservative",
+            }
+        )  # fmt: skip
         for vid, x0 in ((1, 100.0), (2, 60.0))
     ]
     table = pd.concat(rows, ignore_index=True)
@@ -92,8 +103,10 @@ def test_log_mode_runs_into_a_braking_ego_and_reactive_mode_brakes(tmp_path):
     [
         (lambda t: t.drop(columns="lane"), "needs a lane column"),
         (lambda t: t[t.frame == 0], "single frame"),
-        (lambda t: t.assign(x=np.where((t.vehicle_id == 2) & (t.frame == 200), t.x + 30, t.x)),
-         "jumps"),
+        (
+            lambda t: t.assign(x=np.where((t.vehicle_id == 2) & (t.frame == 200), t.x + 30, t.x)),
+            "jumps",
+        ),
         (lambda t: t[t.vehicle_id == 1], "one vehicle"),
         (lambda t: t[t.frame < 30], "stays 5 s"),
     ],
@@ -105,3 +118,41 @@ def test_tables_no_episode_can_come_from_are_refused_in_one_line(tmp_path, edit,
     with pytest.raises(TrajectoryError, match=message) as err:
         Replay(path, 15, 5.0)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("density,mode", [("dense", "log"), ("sparse", "reactive"),
+                                          ("dense", "reactive")])  # fmt: skip
+def test_the_vector_backend_replays_as_highway_env_does(tmp_path, density, mode):
+    """Two recorded scenes replayed on both backends from the same seeds, a random ego: the
+    same windows, observations, rewards, endings and log contacts, step after step (the
+    windows end, the ego crashes into recorded vehicles, reactive ones take over)."""
+    from bgap.envs import make_highway
+    from bgap.sim.vector import VectorHighway
+
+    config = env_config(make_cfg(f"env={density}", "env.duration=20", "mix=0.5"))
+    recorded = rollout(config, "idle", [3, 4], backend="highway", record=True)
+    recorded.trajectories.to_parquet(tmp_path / "recorded.parquet")
+    replay = _replaying(config, tmp_path / "recorded.parquet", mode=mode)
+    endings = set()
+    for seed in range(4):
+        env = make_highway(replay)
+        obs, _ = env.reset(seed=seed)
+        venv = VectorHighway(replay, 1)
+        vobs, _ = venv.reset(seed=[seed])
+        np.testing.assert_allclose(vobs[0], obs, atol=1e-6)
+        rng = np.random.default_rng(seed)
+        for _ in range(25):
+            action = int(rng.integers(5))
+            obs, reward, term, trunc, info = env.step(action)
+            vobs, vreward, vterm, vtrunc, vinfo = venv.step(np.array([action]))
+            mine = vinfo["final_obs"][0] if vterm[0] or vtrunc[0] else vobs[0]
+            np.testing.assert_allclose(mine, obs, atol=1e-6)
+            assert vreward[0] == pytest.approx(reward, abs=1e-9)
+            assert (vterm[0], vtrunc[0]) == (term, trunc)
+            assert bool(vinfo["log_contact"][0]) == info["log_contact"]
+            if term or trunc:
+                endings.add(("crash" if term else "window", info["log_contact"]))
+                break
+    assert ("window", False) in endings  # some windows ran out ...
+    if density == "dense":  # ... others ended in crashes (with a log vehicle in log mode)
+        assert ("crash", mode == "log") in endings

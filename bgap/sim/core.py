@@ -33,6 +33,12 @@ N_PARAM = 11
 # P_BSAFE [LANE_CHANGE_MAX_BRAKING_IMPOSED], P_AMAX [ACC_MAX], P_VMAX [MAX_SPEED],
 # P_OWN: 1 for bgap's BehaviorVehicle (own parameters in predictions, no speed-limit clip).
 
+# Replay (bgap.traffic.replay): per vehicle [track, state, own v0], states below ------------
+R_TRACK, R_STATE, R_OWN_V0 = range(3)
+R_SIMULATED, R_SWITCHED, R_PENDING, R_PARKED, R_LOG, R_GONE = range(6)
+# (>= R_LOG: following its log; R_GONE: it left this frame and is parked after the frame)
+PARK_X, PARK_SPACING = -1.0e7, 50.0  # where absent vehicles wait: off the road, apart
+
 # Labels and ego meta-actions (bgap.vocab: highway-env's DiscreteMetaAction.ACTIONS_ALL)
 EGO, CONSERVATIVE, AGGRESSIVE = (vocab.LABEL_CODES[k] for k in (vocab.EGO, *vocab.CLASSES))
 LANE_LEFT, IDLE, LANE_RIGHT = vocab.LANE_LEFT, vocab.IDLE, vocab.LANE_RIGHT
@@ -424,12 +430,14 @@ def handle_collisions(f, g, b, i, j, dt, pa, pb):
 
 
 @_jit
-def collisions(f, g, b, n, dt, order, pairs, pa, pb):
+def collisions(f, g, b, n, dt, order, pairs, pa, pb, rp=None):
     """Road.step's pairwise handle_collisions, for the pairs that can touch.
 
     highway-env tests all pairs (i < j) in order; a pair can only touch when its centres
     are within DIAGONAL + speed * dt, so we sweep along x for candidates, then handle them
-    in highway-env's order (an impact set by a later pair overwrites an earlier one)."""
+    in highway-env's order (an impact set by a later pair overwrites an earlier one).
+    ``rp``: a replay's vehicle states (:func:`replay_frame`): two vehicles following their
+    logs are not checked."""
     vmax = 0.0
     for v in range(n):
         vmax = max(vmax, abs(f[b, v, SPEED]))
@@ -449,7 +457,10 @@ def collisions(f, g, b, n, dt, order, pairs, pa, pb):
             pairs[pos] = key
             m += 1
     for k in range(m):
-        handle_collisions(f, g, b, pairs[k] // n, pairs[k] % n, dt, pa, pb)
+        i, j = pairs[k] // n, pairs[k] % n
+        if rp is not None and rp[b, i, R_STATE] >= R_LOG and rp[b, j, R_STATE] >= R_LOG:
+            continue
+        handle_collisions(f, g, b, i, j, dt, pa, pb)
 
 
 @_jit
@@ -467,6 +478,114 @@ def frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb):
         vehicle_step(f, g, p, b, i, dt, lanes)
     sort_by_x(f, b, n, order, rank)
     collisions(f, g, b, n, dt, order, pairs, pa, pb)
+
+
+@_jit
+def idm_follow(f, g, p, b, n, i, order, rank):
+    """IDMVehicle.act with lane changes disabled (a replayed vehicle that switched to IDM):
+    steering to its target lane and the IDM acceleration, as :func:`idm_act`."""
+    f[b, i, STEER] = steering_control(f, b, i, g[b, i, TARGET_LANE])
+    front, _ = neighbours(f, b, n, i, g[b, i, LANE], order, rank)
+    acc = acceleration(f, g, p, b, i, i, front)
+    if g[b, i, LANE] != g[b, i, TARGET_LANE]:
+        front, _ = neighbours(f, b, n, i, g[b, i, TARGET_LANE], order, rank)
+        acc = min(acc, acceleration(f, g, p, b, i, i, front))
+    amax = p[b, i, P_AMAX]
+    f[b, i, ACC] = min(max(acc, -amax), amax)
+
+
+@_jit
+def _replayed_state(f, g, b, i, tracks, k, lanes):
+    """Vehicle i at sample ``k`` of the replay's tracks (x, y, vx, vy):
+    bgap.envs.replay.ReplayVehicle.step."""
+    x, y, vx, vy = tracks[k, 0], tracks[k, 1], tracks[k, 2], tracks[k, 3]
+    f[b, i, X], f[b, i, Y] = x, y
+    f[b, i, HEADING], f[b, i, SPEED] = math.atan2(vy, vx), math.hypot(vx, vy)
+    g[b, i, HAS_IMPACT] = 0  # the log does not yield
+    g[b, i, LANE] = closest_lane(y, lanes)
+
+
+@_jit
+def _park(f, b, i):
+    f[b, i, X], f[b, i, Y], f[b, i, SPEED], f[b, i, HEADING] = (
+        PARK_X - PARK_SPACING * i,
+        0.0,
+        0.0,
+        0.0,
+    )
+
+
+@_jit
+def replay_frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb, rp, rframe, tracks,
+                 start, first, length, reactive):  # fmt: skip
+    """One simulation frame of env b replaying a recording (bgap.envs.replay, the
+    reference): Road.act (the ego; each replayed vehicle switches to IDM in reactive mode
+    when its leader is the ego or a switched vehicle closer than its desired gap), Road.step
+    (the ego and switched vehicles move, the others take their next recorded sample or
+    leave), collisions (not between two logs), then the frame's exits and entries.
+    ``rp[b, i]``: (track, state, own v0); track t's samples are ``tracks[start[t]:start[t] +
+    length[t]]``, from scene frame ``first[t]``; ``rframe[b]``: the env's scene frame."""
+    sort_by_x(f, b, n, order, rank)
+    for i in range(n):
+        state = rp[b, i, R_STATE]
+        if g[b, i, LABEL] == EGO:
+            f[b, i, STEER] = steering_control(f, b, i, g[b, i, TARGET_LANE])
+            f[b, i, ACC] = KP_A * (f[b, i, TARGET_SPEED] - f[b, i, SPEED])
+            continue
+        if state == R_LOG and reactive:
+            front, _ = neighbours(f, b, n, i, g[b, i, LANE], order, rank)
+            if front >= 0 and (g[b, front, LABEL] == EGO or rp[b, front, R_STATE] == R_SWITCHED):
+                if f[b, front, X] - f[b, i, X] < desired_gap(f, p, b, i, i, front):
+                    rp[b, i, R_STATE] = state = R_SWITCHED
+                    g[b, i, TARGET_LANE] = g[b, i, LANE]
+                    if rp[b, i, R_OWN_V0] == 0:
+                        f[b, i, TARGET_SPEED] = f[b, i, SPEED]
+        if state == R_SWITCHED and not g[b, i, CRASHED]:
+            idm_follow(f, g, p, b, n, i, order, rank)
+    for i in range(n):
+        state = rp[b, i, R_STATE]
+        if g[b, i, LABEL] == EGO or state == R_SWITCHED:
+            vehicle_step(f, g, p, b, i, dt, lanes)
+        elif state == R_LOG:
+            t = rp[b, i, R_TRACK]
+            k = rframe[b] + 1 - first[t]
+            if k >= length[t]:
+                rp[b, i, R_STATE] = R_GONE  # stays for this frame's collisions
+            else:
+                _replayed_state(f, g, b, i, tracks, start[t] + k, lanes)
+    sort_by_x(f, b, n, order, rank)
+    collisions(f, g, b, n, dt, order, pairs, pa, pb, rp)
+    rframe[b] += 1
+    for i in range(n):  # ReplayScene.after_frame: exits, then entries in road order
+        state = rp[b, i, R_STATE]
+        if state == R_GONE:
+            rp[b, i, R_STATE] = R_PARKED
+            _park(f, b, i)
+        elif state == R_PENDING and first[rp[b, i, R_TRACK]] == rframe[b]:
+            t = rp[b, i, R_TRACK]
+            rp[b, i, R_STATE] = R_LOG
+            _replayed_state(f, g, b, i, tracks, start[t], lanes)
+            if rp[b, i, R_OWN_V0] == 0:
+                f[b, i, TARGET_SPEED] = f[b, i, SPEED]
+            g[b, i, TARGET_LANE] = g[b, i, LANE]
+
+
+@nb.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
+def replay_batch(f, g, p, actions, speeds, frames, dt, lanes, rp, rframe, tracks, start, first,
+                 length, reactive):  # fmt: skip
+    """:func:`step_batch` for replayed traffic (:func:`replay_frame`)."""
+    n_env, n = f.shape[0], f.shape[1]
+    for b in nb.prange(n_env):
+        pa = np.empty((4, 2))
+        pb = np.empty((4, 2))
+        order = np.arange(n)
+        rank = np.arange(n)
+        pairs = np.empty(n * (n - 1) // 2, np.int64)
+        for k in range(frames):
+            if k == 0:
+                ego_act(f, g, b, actions[b], speeds, lanes)
+            replay_frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb, rp, rframe,
+                         tracks, start, first, length, reactive)  # fmt: skip
 
 
 # Random draws: numpy's Generator algorithms on a PCG64 stream reached through its ctypes

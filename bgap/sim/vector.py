@@ -15,6 +15,7 @@ Known differences from highway-env (README "Vectorised backend"):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -56,6 +57,7 @@ from bgap.traffic.behaviors import (
     is_stock,
     mix_stream,
 )
+from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import REWARD_TERMS, contact_dx, full_config
 
 _CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
@@ -124,11 +126,6 @@ def check_supported(config: dict[str, Any]) -> None:
     sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
     if sim % pol:
         raise ValueError("simulation_frequency must be a multiple of policy_frequency")
-    if (config.get("traffic") or {}).get("source", "simulated") != "simulated":
-        raise ConfigError(
-            "backend=vector does not replay traffic yet (issue 37); use backend=highway for "
-            "traffic=replay"
-        )
 
 
 @dataclass
@@ -168,6 +165,18 @@ class VectorHighway(gym.vector.VectorEnv):
         cfg = self.config
         self.num_envs = int(num_envs)
         check(self.num_envs >= 1, "num_envs", num_envs, "must be >= 1")
+        self.traffic = cfg.get("traffic") or {}
+        self.replay = None
+        if self.traffic.get("source") == "replay":  # the road takes the table's lanes
+            if record:
+                raise ConfigError("recording replayed traffic is not supported; replay it "
+                                  "without recording (the table is the recording)")  # fmt: skip
+            self.replay = load_replay(
+                self.traffic["table"], cfg["simulation_frequency"], self.traffic["min_duration"]
+            )
+            cfg["lanes_count"] = self.replay.lanes
+            self._longest = int(round(float(cfg["duration"]) * cfg["simulation_frequency"]))
+            cfg["vehicles_count"] = self.replay.most_vehicles(self._longest)
         self.lanes = int(cfg["lanes_count"])
         self.n = int(cfg["vehicles_count"])
         self.record = record
@@ -205,6 +214,14 @@ class VectorHighway(gym.vector.VectorEnv):
         self._w = np.array([float(cfg[k]) for k in REWARD_TERMS])
         # highway-env normalises x by 5 MAX_SPEED and v by 2 MAX_SPEED of the base Vehicle.
         self._x_range, self._v_range = 5.0 * core.EGO_MAX_SPEED, 2.0 * core.EGO_MAX_SPEED
+        # replay (core.replay_frame): per vehicle (track, state, own v0), per env its scene
+        # frame and the policy steps its window holds
+        self._rp = np.zeros((b, n_veh, 3), dtype=np.int64)
+        self._rframe = np.zeros(b, dtype=np.int64)
+        self._window_steps = np.full(b, self.max_steps, dtype=np.int64)
+        self._others = np.full(b, self.n, dtype=np.int64)  # background vehicles per env
+        if self.replay is not None:
+            self._tracks, *self._track_index, self._track_of = self.replay.tracks()
 
     # ------------------------------------------------------------------ scenes
     def _spawn(self, envs: np.ndarray) -> None:
@@ -212,6 +229,11 @@ class VectorHighway(gym.vector.VectorEnv):
         ``envs``: each env's mix from its mix stream here, its scene drawn by the compiled
         :func:`bgap.sim.core.spawn_batch` from its own stream."""
         envs = np.asarray(envs, dtype=np.int64)
+        if self.replay is not None:
+            for b in envs:
+                self._spawn_replay(int(b))
+            self.steps[envs] = 0
+            return
         states = np.empty(envs.size, dtype=np.uint64)
         for a, b in enumerate(envs):
             mix = episode_mix(self.config, self._mix_rngs[b])
@@ -235,6 +257,66 @@ class VectorHighway(gym.vector.VectorEnv):
             states,
         )
         self.steps[envs] = 0
+
+    def _spawn_replay(self, b: int) -> None:
+        """bgap.envs.highway's _create_replay for env b, drawn from its stream as
+        highway-env draws: the window, then per replayed vehicle in road order its IDM delta
+        (unless its class sets one) and desired-speed spread (if its class sets v0). (After
+        an automatic reset the streams part: highway-env draws a vehicle's parameters when
+        it enters, this backend at the reset, for every vehicle the window may bring.)"""
+        t, rng = self.traffic, self._rngs[b]
+        w = self.replay.window(rng, self._longest, t["vehicle"], t["start"], t["scene"])
+        self._window_steps[b] = w.frames // self.frames_per_step
+        f, g, p, rp = self.f, self.g, self.p, self._rp
+        f[b], g[b], p[b], rp[b] = 0.0, 0, 0.0, 0
+        x, y, vx, vy = w.scene.state[w.start, w.ego]
+        f[b, 0, X], f[b, 0, Y] = x, y
+        f[b, 0, core.HEADING], f[b, 0, SPEED] = math.atan2(vy, vx), math.hypot(vx, vy)
+        g[b, 0, LANE] = g[b, 0, TARGET_LANE] = core.closest_lane(y, self.lanes)
+        idx = core.speed_to_index(f[b, 0, SPEED], self.speeds)
+        g[b, 0, core.SPEED_INDEX], f[b, 0, TARGET_SPEED] = idx, self.speeds[idx]
+        g[b, 0, LABEL] = EGO
+        p[b, 0] = self._classes[0, 3:]
+        end = w.start + self._window_steps[b] * self.frames_per_step
+        scene = w.scene
+        others = [
+            v for v in range(len(scene.ids))
+            if v != w.ego and scene.span(v)[1] >= w.start and scene.span(v)[0] <= end
+        ]  # fmt: skip
+        others.sort(key=lambda v: (max(scene.span(v)[0], w.start), v))  # road order
+        _, start, first, _ = (None, *self._track_index)
+        for slot, v in enumerate(others, start=1):
+            label = scene.labels[v]
+            c = 2 if label == "aggressive" else 1  # a label not of a class: conservative
+            row = self._classes[c]
+            p[b, slot] = row[3:]
+            p[b, slot, core.P_OWN] = 1.0  # a ReplayVehicle is a BehaviorVehicle
+            p[b, slot, core.P_VMAX] = BehaviorVehicle.MAX_SPEED
+            if math.isnan(row[3 + core.P_DELTA]):
+                p[b, slot, core.P_DELTA] = rng.uniform(3.5, 4.5)
+            if not math.isnan(row[1]):
+                rp[b, slot, core.R_OWN_V0] = 1
+                f[b, slot, TARGET_SPEED] = row[1] * rng.uniform(1 - row[2], 1 + row[2])
+            g[b, slot, LABEL] = int(row[0])
+            track = self._track_of[(w.index, v)]
+            rp[b, slot, core.R_TRACK] = track
+            if first[track] <= w.start:
+                rp[b, slot, core.R_STATE] = core.R_LOG
+                core._replayed_state(f, g, b, slot, self._tracks,
+                                     start[track] + w.start - first[track], self.lanes)  # fmt: skip
+                g[b, slot, TARGET_LANE] = g[b, slot, LANE]
+                if not rp[b, slot, core.R_OWN_V0]:
+                    f[b, slot, TARGET_SPEED] = f[b, slot, SPEED]
+            else:
+                rp[b, slot, core.R_STATE] = core.R_PENDING
+                core._park(f, b, slot)
+        for slot in range(len(others) + 1, self.n + 1):
+            rp[b, slot, core.R_TRACK] = -1
+            rp[b, slot, core.R_STATE] = core.R_PARKED
+            core._park(f, b, slot)
+        self._rframe[b] = w.start
+        self.n_aggressive[b] = sum(scene.labels[v] == "aggressive" for v in others)
+        self._others[b] = len(others)
 
     def _class_table(self) -> np.ndarray:
         """:func:`bgap.sim.core.spawn`'s ``classes``: the ego's row (highway-env's IDM
@@ -279,7 +361,9 @@ class VectorHighway(gym.vector.VectorEnv):
         idx = list(range(self.num_envs)) if envs is None else list(envs)
         return {
             "arrays": {
-                k: getattr(self, k)[idx].copy() for k in ("f", "g", "p", "steps", "n_aggressive")
+                k: getattr(self, k)[idx].copy()
+                for k in ("f", "g", "p", "steps", "n_aggressive")
+                + (("_rp", "_rframe", "_window_steps") if self.replay is not None else ())
             },
             "rngs": [self._rngs[b].bit_generator.state for b in idx],
             "mix_rngs": [self._mix_rngs[b].bit_generator.state for b in idx],
@@ -333,23 +417,34 @@ class VectorHighway(gym.vector.VectorEnv):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
         before = self.g[:, 0, TARGET_LANE].copy()
-        core.step_batch(
-            self.f,
-            self.g,
-            self.p,
-            actions,
-            self.speeds,
-            self.frames_per_step,
-            self.dt,
-            self.lanes,
-            self.frames,
-        )
+        if self.replay is not None:
+            start, first, length = self._track_index
+            core.replay_batch(
+                self.f, self.g, self.p, actions, self.speeds, self.frames_per_step, self.dt,
+                self.lanes, self._rp, self._rframe, self._tracks, start, first, length,
+                self.traffic["mode"] == "reactive",
+            )  # fmt: skip
+        else:
+            core.step_batch(
+                self.f,
+                self.g,
+                self.p,
+                actions,
+                self.speeds,
+                self.frames_per_step,
+                self.dt,
+                self.lanes,
+                self.frames,
+            )
         self.steps += 1
         obs = self._observe()
         rewards, terms = self._rewards(before)
         terminated = terms["collision_reward"] > 0
-        truncated = self.steps >= self.max_steps
+        truncated = self.steps >= np.minimum(self.max_steps, self._window_steps)
         info = self._info(terms["lane_change_reward"] > 0)
+        if self.replay is not None:  # the ego's crash partner still followed its log
+            logs = (self._rp[:, :, core.R_STATE] >= core.R_LOG) & (self.g[:, :, CRASHED] > 0)
+            info["log_contact"] = (self.g[:, 0, CRASHED] > 0) & logs[:, 1:].any(axis=1)
         info["rewards"] = terms
         if self.record:
             info["frames"] = self.frames.copy()
@@ -424,7 +519,7 @@ class VectorHighway(gym.vector.VectorEnv):
             "lane_change": lane_change.copy(),
             "lane": self.g[:, 0, LANE].copy(),
             "contact_dx": self._contact_dx(),
-            "aggressive_fraction": self.n_aggressive / max(self.n, 1),
+            "aggressive_fraction": self.n_aggressive / np.maximum(self._others, 1),
             "aggressive_fraction_observed": seen_aggressive / np.maximum(seen, 1),
             "observed_count": seen,
         }

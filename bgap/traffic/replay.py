@@ -123,6 +123,8 @@ class Window:
     ego: int
     start: int
     frames: int
+    index: int = 0
+    """The scene's position in :attr:`Replay.scenes`."""
 
 
 class Replay:
@@ -166,6 +168,38 @@ class Replay:
             )
         if max(len(scene.ids) for scene in self.scenes) < 2:
             raise TrajectoryError(f"{name}: every scene holds one vehicle; nothing to replay")
+
+    def most_vehicles(self, frames: int) -> int:
+        """The most recorded vehicles any window of ``frames`` + 1 frames meets (the vector
+        backend's slots: every vehicle in the section at some frame of an episode)."""
+        most = 0
+        for scene in self.scenes:
+            spans = np.array([scene.span(v) for v in range(len(scene.ids))])
+            begins, ends = np.sort(spans[:, 0]), np.sort(spans[:, 1])
+            starts = np.arange(len(scene.state))
+            count = np.searchsorted(begins, starts + frames, side="right") - np.searchsorted(
+                ends, starts, side="left"
+            )
+            most = max(most, int(count.max()))
+        return most
+
+    def tracks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        """Every recorded vehicle's samples in one array, for the compiled replay: (samples
+        (S, 4): x, y, vx, vy; each track's first sample, first frame and length; the track
+        number of (scene index, vehicle))."""
+        parts, start, first, length, number = [], [], [], [], {}
+        offset = 0
+        for s, scene in enumerate(self.scenes):
+            for v in range(len(scene.ids)):
+                a, z = scene.span(v)
+                number[(s, v)] = len(start)
+                parts.append(scene.state[a : z + 1, v])
+                start.append(offset)
+                first.append(a)
+                length.append(z - a + 1)
+                offset += z - a + 1
+        ints = (np.asarray(x, dtype=np.int64) for x in (start, first, length))
+        return (np.concatenate(parts), *ints, number)
 
     def _scene(self, number: int, g: pd.DataFrame) -> Scene:
         t0 = float(g.time.min())
@@ -219,7 +253,7 @@ class Replay:
                     f"least {self.min_frames * self.dt:g} s starts at most at "
                     f"{(last - self.min_frames) * self.dt:g} s"
                 )
-        return Window(self.scenes[s], v, begin, min(last - begin, max_frames))
+        return Window(self.scenes[s], v, begin, min(last - begin, max_frames), s)
 
 
 def _refuse_jumps(df: pd.DataFrame, name: object) -> None:
