@@ -7,22 +7,14 @@ from __future__ import annotations
 
 import pandas as pd
 
-from bgap.common.errors import TrajectoryError
-from bgap.common.tables import (
+# the one trajectory reader, re-exported where CMetric's users find it
+from bgap.common.errors import TrajectoryError  # noqa: F401
+from bgap.common.tables import (  # noqa: F401
     ALIASES,
     finite_difference_velocity,
     load_trajectories,
     read_table,
 )
-
-__all__ = [
-    "ALIASES",
-    "TrajectoryError",
-    "check_scoreable",
-    "finite_difference_velocity",
-    "load_trajectories",
-    "read_table",
-]
 
 
 def check_scoreable(df: pd.DataFrame) -> None:

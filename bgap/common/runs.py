@@ -99,6 +99,20 @@ its name)."""
 ADDED_LATER |= {f"agent.{k}": v for k, v in ADDED_WITH_ALGOS.items()}
 
 
+def as_before(settings: dict[str, Any]) -> dict[str, Any]:
+    """A config's ``settings`` (``asdict``) without what was added later at the value every
+    earlier config had (the ``agent`` settings of :data:`ADDED_WITH_ALGOS`, simulated
+    ``traffic``), for the names hashed from them: folders and studies named before keep
+    their names."""
+    settings = dict(settings)
+    if isinstance(settings.get("agent"), dict):
+        settings["agent"] = {k: v for k, v in settings["agent"].items()
+                             if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
+    if (settings.get("traffic") or {}).get("source", "simulated") == "simulated":
+        settings.pop("traffic", None)
+    return settings
+
+
 def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATILE) -> list[str]:
     """Dotted keys whose values differ between two config trees, ``ignore``d ones aside."""
     a, b = _flat(stored), _flat(current)

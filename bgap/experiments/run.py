@@ -21,7 +21,7 @@ from omegaconf import DictConfig
 from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
 from bgap.common.config import app, load
-from bgap.common.runs import VOLATILE, digest, exclusive, model_file, save_run_metadata
+from bgap.common.runs import VOLATILE, as_before, digest, exclusive, model_file, save_run_metadata
 from bgap.common.vocab import POLICIES
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
@@ -44,7 +44,7 @@ def results_dir(cfg: ExperimentConfig) -> Path:
     share a folder."""
     if cfg.out:
         return Path(cfg.out)
-    settings = {k: v for k, v in asdict(cfg).items() if k not in VOLATILE}
+    settings = as_before({k: v for k, v in asdict(cfg).items() if k not in VOLATILE})
     name = (
         f"{cfg.env.name}-mix{cfg.mix:g}-r{cfg.radius:g}-{cfg.grid.name}-{cfg.profile.name}"
         f"-s{cfg.seed}-{digest(settings)}"

@@ -38,7 +38,7 @@ from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import ADDED_WITH_ALGOS, VOLATILE, digest
+from bgap.common.runs import VOLATILE, as_before, digest
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
@@ -109,8 +109,7 @@ def study_name(cfg: SweepConfig) -> str:
     # settings added later, at the value every earlier study had, leave its name as it was
     if cfg.mode != "rule":
         settings = {k: v for k, v in settings.items() if k not in ("rule_floor", "stock_margin")}
-    settings["agent"] = {k: v for k, v in settings["agent"].items()
-                         if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
+    settings = as_before(settings)
     return cfg.study or f"{cfg.sweep}-{cfg.mode}-{cfg.env.name}-{digest(settings)}"
 
 

@@ -19,7 +19,7 @@ from bgap.agents.monitor import (
 from bgap.agents.observation import MODEL_ATTRIBUTE
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.common.errors import ConfigError
-from bgap.common.runs import ADDED_WITH_ALGOS, VOLATILE, digest, read_or_refuse, save_run_metadata
+from bgap.common.runs import VOLATILE, as_before, digest, read_or_refuse, save_run_metadata
 from bgap.experiments.config import ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
@@ -60,8 +60,7 @@ def training_identity(cfg: ExperimentConfig) -> dict[str, Any]:
         )
     }
     # settings added later, at the value every earlier training had, leave its name as it was
-    keys["agent"] = {k: v for k, v in keys["agent"].items()
-                     if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
+    keys = as_before(keys | {"traffic": asdict(cfg.traffic)})
     keys["mix"] = cfg.mix if cfg.policy == "behavior_rich" else None
     if cfg.learner != "sb3":  # (the SB3 runs' names predate this setting)
         keys["learner"] = cfg.learner

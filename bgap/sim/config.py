@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from bgap.common.errors import check
 from bgap.common.vocab import BACKENDS
 from bgap.traffic.behaviors import BehaviorConfig
+from bgap.traffic.replay import TrafficConfig, load_replay
 from bgap.traffic.scenario import EnvConfig, RewardConfig, check_config, env_config
 
 
@@ -29,6 +30,9 @@ class BaseConfig:
     backend: str = "highway"
     """Simulator: ``highway`` (highway-env, the reference) or ``vector`` (bgap.sim, the same
     model batched and compiled, ~1000x faster on dense traffic)."""
+    traffic: TrafficConfig = field(default_factory=TrafficConfig)
+    """Where the background traffic comes from: bgap's driver classes (``simulated``) or a
+    recorded table (``traffic=replay traffic.table=PATH``, :mod:`bgap.traffic.replay`)."""
 
     def __post_init__(self) -> None:
         self.mix += 0.0  # -0.0 is 0.0: one folder name, one result
@@ -51,11 +55,15 @@ class BaseConfig:
             "reward.converged=true",
         )
         check_config(env_config(self))  # the one validator both simulators run
+        t = self.traffic
+        if t.source == "replay":  # a table no episode can come from fails here, in one line
+            load_replay(t.table, self.env.simulation_frequency, t.min_duration)
 
 
 SCHEMAS = (
     ("env", "base_env", EnvConfig),
     ("behavior", "base_behavior", BehaviorConfig),
     ("reward", "base_reward", RewardConfig),
+    ("traffic", "base_traffic", TrafficConfig),
 )
 """Hydra ConfigStore entries (group, name, schema) of the environment's config groups."""

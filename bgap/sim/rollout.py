@@ -91,6 +91,8 @@ class EpisodeStats:
         self.terms = np.zeros((num_envs, len(TERMS)))
         self.last_lane_change = np.full(num_envs, -(10**9), dtype=np.int64)
         self.contact = np.full(num_envs, np.nan)
+        self.log_contact = np.zeros(num_envs, dtype=bool)
+        self.replayed = False  # replayed traffic reports log contacts (bgap.traffic.replay)
         # Steps whose crash a lane change started in them or before them is blamed for.
         self.window = max(int(np.ceil(LANE_CHANGE_WINDOW * policy_frequency)) - 1, 0)
 
@@ -105,6 +107,9 @@ class EpisodeStats:
         self.crashed[idx] = np.asarray(info["crashed"], dtype=bool)[idx]
         if "contact_dx" in info:
             self.contact[idx] = np.asarray(info["contact_dx"], dtype=float)[idx]
+        if "log_contact" in info:
+            self.replayed = True
+            self.log_contact[idx] = np.asarray(info["log_contact"], dtype=bool)[idx]
         rewards = info.get("rewards", {})
         for k, term in enumerate(TERMS):
             if f"{term}_reward" in rewards:
@@ -133,6 +138,8 @@ class EpisodeStats:
             "steps": int(self.steps[i]),
             "return": float(self.total[i]),
             **{f"r_{term}": float(self.terms[i, k] / steps) for k, term in enumerate(TERMS)},
+            # replayed traffic: the crash partner still followed its log (it could not react)
+            **({"log_contact": bool(self.log_contact[i])} if self.replayed else {}),
         }
 
     def clear(self, i: int) -> None:
@@ -141,6 +148,7 @@ class EpisodeStats:
         self.terms[i] = 0.0
         self.last_lane_change[i] = -(10**9)
         self.contact[i] = np.nan
+        self.log_contact[i] = False
 
 
 # ---------------------------------------------------------------------------- rollout

@@ -104,6 +104,7 @@ class Scenario(Protocol):
     behavior: BehaviorConfig
     mix: float
     radius: float
+    traffic: TrafficConfig
 
 
 # The paper's observation: presence, x, y, vx, vy of V vehicles (the ego's row first),
@@ -133,6 +134,8 @@ def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
     ``mix_sampling``: ``fixed`` keeps ``cfg.mix``; ``uniform`` or ``paper`` draw a new mix at
     every reset (training across mixes)."""
     e, r = cfg.env, cfg.reward
+    traffic = getattr(cfg, "traffic", None)
+    replay = {"traffic": traffic.as_config()} if traffic and traffic.source == "replay" else {}
     return {
         "observation": {**OBSERVATION, "vehicles_count": e.observed_vehicles},
         "action": {"type": "DiscreteMetaAction", "target_speeds": list(e.ego_speeds)},
@@ -153,6 +156,7 @@ def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
             "conservative": asdict(cfg.behavior.conservative),
             "aggressive": asdict(cfg.behavior.aggressive),
         },
+        **replay,
     }
 
 
