@@ -67,6 +67,10 @@ _ALGORITHM_KEYS = (
 )
 
 
+ALGORITHMS = tuple(name for name, _ in _ALGORITHM_KEYS)
+"""Algorithms a model file may be named with (``ppo:path``)."""
+
+
 def load_model(spec: str | Path) -> Any:
     """A saved Stable-Baselines3 model of any algorithm: ``[algo:]path`` (``ppo:run/model.zip``
     names it; otherwise it is recognised from the attributes saved in the file). DQN models

@@ -31,7 +31,7 @@ T = TypeVar("T")
 LOCK = ".lock"
 """The advisory lock file of a folder a command is writing (:func:`exclusive`)."""
 
-VOLATILE = ("resume", "workers", "root", "out", "run_dir")
+VOLATILE = ("resume", "workers", "root", "out", "run_dir", "cluster")
 """Settings that do not change what a folder holds (where it is, how fast it is made)."""
 
 

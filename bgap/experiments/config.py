@@ -10,6 +10,7 @@ from omegaconf import DictConfig
 from bgap.agents.config import AgentConfig
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN
 from bgap.common import config as plumbing
+from bgap.common.cluster import ClusterConfig
 from bgap.common.errors import check
 from bgap.common.vocab import (
     BASELINES,
@@ -112,6 +113,9 @@ class ExperimentConfig(BaseConfig):
     val_seed: int = 50_000
     """Validation episodes (training's periodic evaluations, sweeps' scores) use seed
     val_seed + k: choices are made on these, never on the test episodes (ours)."""
+    cluster: ClusterConfig = field(default_factory=ClusterConfig)
+    """Where the work runs: here (the default) or on a Ray cluster (``cluster.address``,
+    :mod:`bgap.common.cluster`); never what it computes."""
     workers: int = 2
     """Worker processes: evaluation's, and ``bgap.train``'s and ``bgap.run``'s for several
     SB3 trainings side by side (one training per process)."""

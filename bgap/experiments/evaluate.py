@@ -14,6 +14,7 @@ and the split of the crashes by kind (``ending``: rear end, rear-ended, lane cha
 from __future__ import annotations
 
 import json
+import tempfile
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
@@ -26,9 +27,10 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
-from bgap.agents.policies import as_policy, load_model, rollout
+from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, rollout
 from bgap.analysis.episodes import EPISODES, MODELS
 from bgap.analysis.stats import per_100km, t_interval, wilson_interval
+from bgap.common.cluster import run_tasks
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -91,6 +93,27 @@ def _check_densities(policies: dict[str, Any], cells: list[Cell], cfg: Experimen
             )
 
 
+def _shippable(spec: Any) -> Any:
+    """A policy spec a cluster's node can play: a saved model as ``(file name, bytes)`` (the
+    node needs no access to this machine's files), anything else as it is."""
+    if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
+        algo, sep, rest = str(spec).partition(":")
+        named = bool(sep) and algo.lower() in ALGORITHMS  # ppo:run/model.zip
+        return (f"{algo}:" if named else "", model_path(rest if named else spec).read_bytes())
+    return spec
+
+
+def _evaluate_shipped(name: str, spec: Any, *rest: Any) -> list:
+    """:func:`_evaluate_chunk` on a node, a shipped model written to a file of its own."""
+    if isinstance(spec, tuple):
+        prefix, data = spec
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "model.zip"
+            path.write_bytes(data)
+            return _evaluate_chunk(name, load_model(f"{prefix}{path}"), *rest)
+    return _evaluate_chunk(name, spec, *rest)
+
+
 def _loaded(spec: Any) -> Any:
     """A saved model's path as the loaded model; any other policy form as it is."""
     if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
@@ -127,8 +150,9 @@ def evaluate(
         chunk, workers = episodes, 1
     else:
         workers = cfg.workers
-    if workers == 1:  # in-process: load each saved model once, not once per cell and chunk
-        # (an SB3 load builds the networks again: ~0.3 s, 1,200 times in the paper's grid)
+    if workers == 1 and not cfg.cluster.enabled:  # in-process: load each model once, not once
+        # per cell and chunk (an SB3 load builds the networks again: ~0.3 s, 1,200 times in
+        # the paper's grid)
         policies = {name: _loaded(spec) for name, spec in policies.items()}
     _check_densities(policies, cells, cfg)
     jobs = [
@@ -139,7 +163,14 @@ def evaluate(
     ]
     rows: list[dict] = []
     bar = tqdm(total=len(jobs) * chunk, unit="ep", desc="evaluate", disable=not progress)
-    if workers > 1:
+    if cfg.cluster.enabled:  # one Ray task per job; a model travels as its file's bytes
+        shipped = {name: _shippable(spec) for name, spec in policies.items()}
+        calls = [(name, shipped[name], *rest) for name, _, *rest in jobs]
+        for part in run_tasks(
+            cfg.cluster, _evaluate_shipped, calls, lambda k, r: bar.update(chunk)
+        ):
+            rows.extend(part)
+    elif workers > 1:
         with ProcessPoolExecutor(workers, mp_context=get_context("fork")) as pool:
             for part in pool.map(_evaluate_chunk, *zip(*jobs, strict=True)):
                 rows.extend(part)

@@ -1,0 +1,155 @@
+"""Where heavy work runs: this process (the default) or a Ray cluster (issue 35).
+
+    python -m bgap.evaluate ... cluster.address=local        # Ray started in-process
+    python -m bgap.evaluate ... cluster.address=auto         # the cluster `ray start` made
+
+``cluster.*`` changes where work runs, never what it computes: the settings stay out of
+run-folder names, study names and the pipeline's parameters (:data:`bgap.common.runs.VOLATILE`),
+and a task returns its results to the driver, which writes them where the local path would.
+Ray is an optional extra (``pip install -e ".[cluster]"``); without it, only the local path.
+
+Why Ray: the distributed engine the RL field already runs on (RLlib, Tune), with tasks,
+resources per task, retries on a lost node and a dashboard; written against its task API
+only (``ray.init``, ``ray.remote``, ``ray.get``, ``ray.cancel``).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any, Optional
+
+from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
+
+
+@dataclass
+class ClusterConfig:
+    """Where heavy work runs (``cluster.*``; none of it changes a result)."""
+
+    address: str = ""
+    """Empty: this process (and its worker processes), no Ray. ``local``: a Ray instance
+    started in this process over this machine's cores (the tests; one big machine).
+    ``auto`` or ``HOST:PORT``: an existing cluster (``ray start --head``)."""
+    cpus: float = 1.0
+    """CPUs each task asks for (a training, an evaluation chunk)."""
+    gpus: float = 0.0
+    """GPUs each task asks for (fractions share one)."""
+    retries: int = 3
+    """Times a task is retried when its node dies (Ray's ``max_retries``)."""
+    storage: Optional[str] = None
+    """A path every node sees (or an fsspec URL): where tasks keep checkpoints, so a retried
+    task resumes where the lost one stopped. Default: the run folders themselves (one
+    machine, or a shared file system)."""
+
+    def __post_init__(self) -> None:
+        check(self.cpus > 0, "cluster.cpus", self.cpus, "must be > 0")
+        check(self.gpus >= 0, "cluster.gpus", self.gpus, "must be >= 0")
+        check(self.retries >= 0, "cluster.retries", self.retries, "must be >= 0")
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.address)
+
+
+def _ray() -> Any:
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError(
+            "cluster.address needs Ray: pip install -e '.[cluster]' (or leave cluster.address "
+            "empty to run here)"
+        ) from None
+    return ray
+
+
+@contextmanager
+def connected(cfg: ClusterConfig) -> Iterator[Any]:
+    """Ray connected as ``cfg`` says for the duration (None when ``cfg`` is the local path);
+    an unreachable address is one line, before any work starts."""
+    if not cfg.enabled:
+        yield None
+        return
+    ray = _ray()
+    started = not ray.is_initialized()
+    if started:
+        kwargs: dict[str, Any] = {"log_to_driver": False, "configure_logging": False}
+        if cfg.address == "local":
+            kwargs |= {"num_cpus": os.cpu_count(), "include_dashboard": False}
+        else:
+            _reachable(cfg.address)
+            kwargs["address"] = cfg.address
+        try:
+            context = ray.init(**kwargs)
+        except (ConnectionError, RuntimeError, ValueError) as err:
+            first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise ConfigError(
+                f"cluster.address={cfg.address!r}: cannot connect to a Ray cluster ({first}); "
+                "start one with `ray start --head`, check the address and the token "
+                "(RAY_AUTH_TOKEN), or use cluster.address=local"
+            ) from None
+        url = getattr(context, "dashboard_url", None)
+        if url:
+            print(f"Ray cluster {cfg.address}: dashboard at http://{url}", flush=True)
+    try:
+        yield ray
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _reachable(address: str) -> None:
+    """A ``HOST:PORT`` that does not answer is refused here in a few seconds (Ray itself keeps
+    retrying for minutes)."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit():
+        return  # "auto" and Ray's own address forms: Ray's check
+    try:
+        socket.create_connection((host or "127.0.0.1", int(port)), timeout=5).close()
+    except OSError as err:
+        raise ConfigError(
+            f"cluster.address={address!r}: cannot connect to a Ray cluster "
+            f"({err.strerror or err}); start one with `ray start --head`, check the address, "
+            "or use cluster.address=local"
+        ) from None
+
+
+def run_tasks(
+    cfg: ClusterConfig,
+    fn: Callable[..., Any],
+    calls: Sequence[tuple],
+    done: Callable[[int, Any], None] | None = None,
+) -> list[Any]:
+    """``fn(*call)`` for every call as Ray tasks of ``cfg``'s resources; the results in the
+    order of ``calls`` (``done(k, result)`` as each arrives, for progress). Ctrl-C cancels
+    the tasks still running and says so."""
+    with connected(cfg) as ray:
+        remote = ray.remote(fn).options(
+            num_cpus=cfg.cpus, num_gpus=cfg.gpus, max_retries=cfg.retries
+        )
+        refs = [remote.remote(*call) for call in calls]
+        index = {ref: k for k, ref in enumerate(refs)}
+        results: list[Any] = [None] * len(refs)
+        pending = list(refs)
+        try:
+            while pending:
+                ready, pending = ray.wait(pending, num_returns=1)
+                k = index[ready[0]]
+                results[k] = ray.get(ready[0])
+                if done is not None:
+                    done(k, results[k])
+        except ray.exceptions.RayTaskError as err:  # a task's own one-line error, as such
+            cause = getattr(err, "cause", None)
+            if isinstance(cause, (ConfigError, TrajectoryError)):
+                raise cause from None
+            raise
+        except KeyboardInterrupt:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise Interrupted(
+                f"stopped: {len(refs) - len(pending)} of {len(refs)} tasks had finished; the "
+                "cluster's others were cancelled"
+            ) from None
+        return results
