@@ -47,3 +47,24 @@ def test_an_unreachable_cluster_is_one_line_and_exit_status_2(tmp_path):
     assert done.returncode == 2
     assert "cannot connect to a Ray cluster" in done.stderr
     assert "Traceback" not in done.stderr
+
+
+def test_trainings_as_ray_tasks_learn_what_they_learn_here(tmp_path):
+    """Two tiny SB3 trainings (seeds=[0,1]) here and as Ray tasks (their run folders shipped
+    to the node and back): the same parameters, in the same folders' layout."""
+    import torch as th
+
+    from bgap.agents.policies import load_model
+    from bgap.experiments.train import train_side_by_side
+    from bgap.experiments.training import member_configs
+
+    dirs = {}
+    for extra in ([], ["cluster.address=local"]):
+        where = "ray" if extra else "here"
+        overrides = ["agent=ppo", "profile=tiny", "env=sparse", "seeds=[0,1]", "backend=vector",
+                     f"run_dir={tmp_path}/{where}", *extra]  # fmt: skip
+        dirs[where] = train_side_by_side(member_configs(validate(compose("train", overrides))), 1)
+    for here, there in zip(dirs["here"], dirs["ray"], strict=True):
+        assert here.name == there.name and (there / "config.yaml").exists()
+        a, b = (load_model(d).policy.state_dict() for d in (here, there))
+        assert all(th.equal(a[k], b[k]) for k in a)

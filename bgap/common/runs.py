@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import fcntl
 import hashlib
+import io
 import json
 import os
 import pickle
 import shlex
 import sys
+import tarfile
 import zipfile
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -259,6 +261,25 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
         handle.close()
         if created and not any(folder.iterdir()):  # refused before writing: leave no trace
             folder.rmdir()
+
+
+def pack(folder: Path) -> bytes:
+    """A folder as a gzipped tar in memory (a run folder sent to or from a cluster's node);
+    an absent folder as an empty archive."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz") as archive:
+        if folder.exists():
+            for path in sorted(folder.rglob("*")):
+                if path.name != LOCK:
+                    archive.add(path, arcname=str(path.relative_to(folder)), recursive=False)
+    return buffer.getvalue()
+
+
+def unpack(data: bytes, folder: Path) -> None:
+    """:func:`pack`'s archive into ``folder`` (created; files it holds are replaced)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as archive:
+        archive.extractall(folder, filter="data")
 
 
 def held_by_parent(folders: Iterable[str | Path]) -> None:

@@ -18,6 +18,7 @@ environments restart on fresh seeds.
 from __future__ import annotations
 
 import pickle
+import tempfile
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -40,9 +41,10 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import with_features
+from bgap.common.cluster import ClusterConfig, run_tasks
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
-from bgap.common.runs import exclusive, held_by_parent, write_atomic
+from bgap.common.runs import exclusive, held_by_parent, pack, unpack, write_atomic
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
@@ -53,6 +55,7 @@ from bgap.experiments.training import (
     open_run_dir,
     read_checkpoint,
     run_dir_for,
+    run_name,
     training_config,
 )
 from bgap.sim.sb3 import SB3VecEnv
@@ -186,6 +189,8 @@ def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]
     batched learner, DQN only, is faster where it applies.)"""
     dirs = member_dirs(cfgs)
     cfgs = [replace(c, run_dir=str(d)) for c, d in zip(cfgs, dirs, strict=True)]
+    if cfgs[0].cluster.enabled:
+        return _train_on_cluster(cfgs, dirs)
     if workers <= 1 or len(cfgs) == 1:
         return [train(c) for c in cfgs]
     # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
@@ -211,6 +216,46 @@ def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]
         finally:
             bar.close()
     return dirs
+
+
+def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Path]:
+    """Each unfinished training one Ray task (:mod:`bgap.common.cluster`): its run folder
+    (config, command, any checkpoint) travels to the node, which trains it there, in
+    ``cluster.storage`` when set (a retried task resumes from the lost one's checkpoints),
+    and sends the finished folder back here."""
+    cluster = cfgs[0].cluster
+    with ExitStack() as locks:
+        for d in sorted(set(dirs)):
+            locks.enter_context(exclusive(d))
+        todo = []
+        for c, d in zip(cfgs, dirs, strict=True):
+            if open_run_dir(c, d)[1] != "finished":  # writes config and command here
+                todo.append((c, d))
+        calls = [(c, pack(d), cluster.storage) for c, d in todo]
+        bar = tqdm(total=len(todo), desc=f"{len(todo)} trainings on {cluster.address}",
+                   unit="training")  # fmt: skip
+
+        def done(k: int, packed: bytes) -> None:
+            unpack(packed, todo[k][1])
+            bar.write(f"finished: {todo[k][0].policy} seed {todo[k][0].seed} in {todo[k][1]}")
+            bar.update()
+
+        run_tasks(cluster, _train_task, calls, done)
+        bar.close()
+    return dirs
+
+
+def _train_task(cfg: ExperimentConfig, packed: bytes, storage: str | None) -> bytes:
+    """On a node: the shipped run folder trained to the end (resumed from its checkpoint, or
+    from one a lost attempt left in ``storage``), sent back whole."""
+    torch.set_num_threads(1)
+    with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
+        base = Path(storage) if storage else Path(tmp)
+        work = base / f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
+        if not (work / "checkpoints" / "state.pkl").exists():
+            unpack(packed, work)
+        train(replace(cfg, run_dir=str(work), resume=True, cluster=ClusterConfig()), False)
+        return pack(work)
 
 
 def _train_worker(cfg: ExperimentConfig, held: list[Path]) -> Path:
