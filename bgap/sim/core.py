@@ -483,7 +483,9 @@ def frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb):
 @_jit
 def idm_follow(f, g, p, b, n, i, order, rank):
     """IDMVehicle.act with lane changes disabled (a replayed vehicle that switched to IDM):
-    steering to its target lane and the IDM acceleration, as :func:`idm_act`."""
+    steering to its target lane and the IDM acceleration, as :func:`idm_act`. (Its lines
+    repeat :func:`idm_act`'s on purpose: idm_act calling this instead made the simulated
+    step 5-10% slower, dense 6,843 vs 7,582 env-steps/s, medians of 3.)"""
     f[b, i, STEER] = steering_control(f, b, i, g[b, i, TARGET_LANE])
     front, _ = neighbours(f, b, n, i, g[b, i, LANE], order, rank)
     acc = acceleration(f, g, p, b, i, i, front)
