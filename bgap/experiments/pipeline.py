@@ -167,8 +167,10 @@ def rehearsal(params: dict) -> None:
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
-    params["learner_recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
-    params["learner_recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
+    if "learner_recipe" in params:  # (commits before issue 32's searches have none)
+        learner = params["learner_recipe"]
+        learner.update(profile="tiny", trials=2, candidates=1, check_episodes=10)
+        learner.update(check_seeds="[0,1]", sweep_episodes=4)
     params["parity"] = {"episodes": 2, "duration": 2}
     params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
     search = params["cmetric_search"]
