@@ -460,3 +460,32 @@ def test_the_kept_checkpoint_has_the_highest_validation_return(tmp_path):
     assert json.loads((tmp_path / "best.json").read_text())["episodes"] == 200
     assert (tmp_path / "best_model.zip").read_text() == "model 3"  # and no temporary left
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".zip") == ["best_model.zip"]
+
+
+def test_a_kill_while_the_first_checkpoints_state_is_written_leaves_none(tmp_path, monkeypatch):
+    """Killed in the middle of writing the first checkpoint's state.pkl (a batched learner's
+    second member while the first one's checkpoint was already in place: CI's failure):
+    the half-written folder is not taken for a checkpoint, the training starts afresh."""
+    from pathlib import Path
+
+    from bgap.agents import monitor as mon
+
+    m = mon.TrainingMonitor(tmp_path, 1, env_config(make_cfg()), "vector", None, 0, 1, 0)
+
+    class Killed(BaseException):
+        pass
+
+    real = Path.write_bytes
+
+    def half(self, data):
+        if "state" in self.name:
+            real(self, data[: len(data) // 2])
+            raise Killed
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", half)
+    with pytest.raises(Killed):
+        m.checkpoint({"model.zip": lambda p: p.write_text("m40")}, {"env": 40})
+    monkeypatch.setattr(Path, "write_bytes", real)
+    mon.recover_checkpoint(tmp_path)
+    assert not (tmp_path / "checkpoints").exists()
