@@ -334,3 +334,21 @@ def test_a_whole_training_on_sb3s_random_streams_is_sb3s_training(tmp_path):
     assert a._n_updates == b._n_updates == 300
     for p, q in zip(a.policy.q_net.parameters(), b.policy.q_net.parameters(), strict=True):
         np.testing.assert_allclose(p.detach().numpy(), q.detach().numpy(), rtol=0, atol=1e-4)
+
+
+def test_batched_members_are_validated_during_training(tmp_path):
+    """Periodic validation (profile.eval_every_episodes) plays each member as a model: its
+    evaluations.csv holds its rows beside the idle and rule-based egos' (the pipeline's
+    rehearsals train so; a member seen as a model needs its observation space)."""
+    import pandas as pd
+
+    from bgap.common.config import validate
+    from bgap.experiments.batched import train_batched
+    from bgap.experiments.training import member_configs
+    from tests.configs import compose
+
+    more = ["profile.eval_every_episodes=2", "profile.eval_during_training=2"]
+    cfgs = member_configs(validate(compose("train", [*_overrides(tmp_path, "v"), *more])))
+    for run in train_batched(cfgs, progress=False):
+        table = pd.read_csv(run / "evaluations.csv")
+        assert len(table) >= 1 and {"collision_pct", "rule_avg_speed"} <= set(table.columns)

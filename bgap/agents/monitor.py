@@ -195,7 +195,8 @@ class TrainingMonitor:
         for name, write in save.items():
             write(new / name)
         state = {"monitor": self.state, "stats": self.stats.__dict__, "recent": self.recent}
-        (new / "state.pkl").write_bytes(pickle.dumps({**state, **extra}))
+        # whole or absent: its presence marks the folder complete (recover_checkpoint)
+        write_atomic(new / "state.pkl", pickle.dumps({**state, **extra}))
         shutil.rmtree(old, ignore_errors=True)
         if final.exists():
             os.replace(final, old)

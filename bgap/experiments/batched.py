@@ -55,10 +55,16 @@ class _MemberPolicy:
     by :class:`~bgap.agents.monitor.TrainingMonitor`'s periodic evaluations."""
 
     def __init__(
-        self, learner: BatchedDQN, k: int, save: Callable[[int, Path], None], options: list[str]
+        self,
+        learner: BatchedDQN,
+        k: int,
+        save: Callable[[int, Path], None],
+        options: list[str],
+        observation_space: gym.Space,
     ) -> None:
         self.learner, self.k, self._save = learner, k, save
         setattr(self, MODEL_ATTRIBUTE, options)  # its observation's added columns
+        self.observation_space = observation_space  # what a model played by rollout has
 
     def save(self, path: Path) -> None:
         self._save(self.k, path)
@@ -181,7 +187,7 @@ class _Members:
         if self.first.threads:
             torch.set_num_threads(self.first.threads)
         self.groups = self._make_groups()
-        space = self.groups[0].venv.single_observation_space
+        self.space = space = self.groups[0].venv.single_observation_space
         action_space = self.groups[0].venv.single_action_space
         schedule = Schedule(
             e, self.p.train_steps,
@@ -331,7 +337,8 @@ class _Members:
             self.monitors[k].state["steps"] = int(learner.num_timesteps[k])
             go_on = self.monitors[k].on_step(
                 rewards[k], infos[k], terminated[k] | truncated[k],
-                _MemberPolicy(learner, k, self.save_model, self.first.agent.observation),
+                _MemberPolicy(learner, k, self.save_model, self.first.agent.observation,
+                              self.space),
             )  # fmt: skip
             if go_on:
                 keep.append(k)
