@@ -417,7 +417,8 @@ def test_a_kill_while_a_checkpoint_is_written_leaves_the_previous_one_whole(tmp_
         calls = []
 
         def replace(a, b):
-            calls.append(a)
+            if mon.Path(a).name.startswith("checkpoints"):  # the folders' renames only
+                calls.append(a)
             if len(calls) == 2:
                 raise Killed
             real(a, b)
