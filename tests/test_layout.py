@@ -168,3 +168,31 @@ def test_relock_compares_a_runs_settings_by_what_the_base_had(tmp_path):
     (tmp_path / "a.csv").write_text("x\n1\n")
     (tmp_path / "b.csv").write_text("x\n1\nseed: 0\n")
     assert not _same(tmp_path / "a.csv", tmp_path / "b.csv")
+
+
+def test_relock_compares_a_checkpoints_state_by_content(tmp_path):
+    """A training checkpoint's state.pkl may gain fields (new running statistics at their
+    initial value); a changed array, counter or random stream makes it differ."""
+    import pickle
+
+    import numpy as np
+
+    from bgap.experiments.pipeline import _same
+
+    def write(name: str, state: dict) -> Path:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "state.pkl").write_bytes(pickle.dumps(state))
+        return tmp_path / name / "state.pkl"
+
+    def state(**more):
+        stats = {"speed": np.array([1.5, 2.0]), "steps": np.array([3, 4]), **more}
+        return {"monitor": {"episodes": 7}, "stats": stats, "env": {"rngs": [{"s": 11}]}}
+
+    base = write("base", state())
+    assert _same(base, write("gained", state(log_contact=np.zeros(2, dtype=bool))))
+    changed = state()
+    changed["stats"]["speed"] = np.array([1.5, 2.5])
+    assert not _same(base, write("speed", changed))
+    other_stream = state()
+    other_stream["env"]["rngs"][0]["s"] = 12
+    assert not _same(base, write("stream", other_stream))

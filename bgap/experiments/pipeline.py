@@ -14,6 +14,7 @@ from __future__ import annotations
 import ast
 import filecmp
 import os
+import pickle
 import re
 import shutil
 import subprocess
@@ -23,6 +24,7 @@ import zipfile
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from bgap.common.cli import OneLineParser
@@ -147,6 +149,9 @@ radii: [180.0, 30.0]
 """The evaluation grid of a rehearsal: the tiny grid at both densities."""
 
 
+CHECKPOINT_STATE = "state.pkl"
+"""A training checkpoint's counters and states (bgap.agents.monitor), compared by content."""
+
 REHEARSED = ".rehearsed"
 """Marks a finished rehearsal in its folder: ``--work`` of an earlier run reuses it."""
 
@@ -260,9 +265,12 @@ def _same(a: Path, b: Path) -> bool:
     And for a run's resolved settings (``config.yaml``), where ``b`` may hold settings that
     ``a``'s code did not have: every setting of ``a`` must be in ``b`` with the same value
     (a setting added with a default that reproduces the old results; the other outputs show
-    whether it does)."""
+    whether it does). Likewise a training checkpoint's ``state.pkl`` (counters, running
+    statistics, the environments' state), which may gain fields that later code keeps."""
     if a.name == CONFIG and b.name == CONFIG:
         return _kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
+    if a.name == b.name == CHECKPOINT_STATE:
+        return _kept(pickle.loads(a.read_bytes()), pickle.loads(b.read_bytes()))
     if a.suffix != ".zip":
         return filecmp.cmp(a, b, shallow=False)
     with zipfile.ZipFile(a) as za, zipfile.ZipFile(b) as zb:
@@ -277,9 +285,14 @@ def _same(a: Path, b: Path) -> bool:
 
 def _kept(old: Any, new: Any) -> bool:
     """Whether ``new`` holds every setting of ``old`` with the same value (dicts may gain
-    keys; anything else must be equal)."""
+    keys; sequences and arrays must be equal item by item, as anything else)."""
     if isinstance(old, dict) and isinstance(new, dict):
         return all(k in new and _kept(v, new[k]) for k, v in old.items())
+    if isinstance(old, np.ndarray) or isinstance(new, np.ndarray):
+        arrays = isinstance(old, np.ndarray) and isinstance(new, np.ndarray)
+        return arrays and old.dtype == new.dtype and np.array_equal(old, new, equal_nan=True)
+    if isinstance(old, (list, tuple)) and isinstance(new, (list, tuple)):
+        return len(old) == len(new) and all(_kept(x, y) for x, y in zip(old, new, strict=True))
     return bool(old == new)
 
 
