@@ -1,7 +1,7 @@
 """Replayed traffic on highway-env's road (issue 37): the reference replay.
 
 A :class:`ReplayVehicle` is a recorded vehicle on highway-env's road: frame by frame it takes
-its recorded state (:class:`bgap.traffic.replay.Scene`) until, in ``reactive`` mode, it
+its recorded state (:class:`bgap.traffic.replay.RecordedScene`) until, in ``reactive`` mode, it
 switches to IDM behind the ego for good. :class:`ReplayScene` puts a window's vehicles on the
 road, adds those that enter the section and removes those that leave, after every frame.
 Collisions between two vehicles still following their logs are the recording's business and
@@ -19,13 +19,15 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.common.vocab import CLASSES, COLORS, CONSERVATIVE
 from bgap.traffic.behaviors import BehaviorVehicle, set_driver_params
-from bgap.traffic.replay import Scene, Window
+from bgap.traffic.replay import RecordedScene, Window
 
 
 class ReplayVehicle(BehaviorVehicle):
     """Recorded vehicle ``v`` of ``scene``, placed at frame ``frame`` of the recording."""
 
-    def __init__(self, road: Road, scene: Scene, v: int, frame: int, reactive: bool) -> None:
+    def __init__(
+        self, road: Road, scene: RecordedScene, v: int, frame: int, reactive: bool
+    ) -> None:
         x, y, vx, vy = scene.state[frame, v]
         super().__init__(road, [x, y], math.atan2(vy, vx), math.hypot(vx, vy))
         self.scene, self.v, self.frame, self.reactive = scene, v, frame, reactive

@@ -94,7 +94,7 @@ class TrafficConfig:
 
 
 @dataclass
-class Scene:
+class RecordedScene:
     """One recorded scene resampled to the simulation frequency: ``state[k, v]`` is vehicle
     ``v``'s x, y, vx, vy at frame k (NaN while it is not in the section)."""
 
@@ -119,7 +119,7 @@ class Window:
     """An episode's piece of a scene: the ego replaces vehicle ``ego`` from frame ``start``
     for ``frames`` frames (the episode ends there, or earlier at ``env.duration``)."""
 
-    scene: Scene
+    scene: RecordedScene
     ego: int
     start: int
     frames: int
@@ -201,7 +201,7 @@ class Replay:
         ints = (np.asarray(x, dtype=np.int64) for x in (start, first, length))
         return (np.concatenate(parts), *ints, number)
 
-    def _scene(self, number: int, g: pd.DataFrame) -> Scene:
+    def _scene(self, number: int, g: pd.DataFrame) -> RecordedScene:
         t0 = float(g.time.min())
         total = int(np.floor((float(g.time.max()) - t0) / self.dt + 1e-9)) + 1
         grid = t0 + np.arange(total) * self.dt
@@ -215,7 +215,7 @@ class Replay:
                 state[inside, v, c] = np.interp(grid[inside], t, track[col].to_numpy())
             labels.append(str(track.label.iloc[0]) if "label" in track else None)
         ids = np.array([vid for vid, _ in tracks])
-        return Scene(number, state, ids, labels)
+        return RecordedScene(number, state, ids, labels)
 
     def window(
         self,
