@@ -130,6 +130,7 @@ def test_an_attention_network_trains_and_loads_with_its_extractor(tmp_path, algo
         validate(compose("train", [*overrides, "learner=batched"]))
 
 
+@pytest.mark.slow
 def test_sb3_trainings_side_by_side_learn_what_they_learn_alone(tmp_path):
     """bgap.train seeds=[0,1] with the SB3 learner in two processes (workers=2) and one after
     the other (workers=1): the same parameters, in the same per-training folders."""

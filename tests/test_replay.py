@@ -120,8 +120,11 @@ def test_tables_no_episode_can_come_from_are_refused_in_one_line(tmp_path, edit,
     assert "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize("density,mode", [("dense", "log"), ("sparse", "reactive"),
-                                          ("dense", "reactive")])  # fmt: skip
+@pytest.mark.parametrize(
+    "density,mode",
+    [("dense", "log"), ("sparse", "reactive"),
+     pytest.param("dense", "reactive", marks=pytest.mark.slow)],
+)  # fmt: skip
 def test_the_vector_backend_replays_as_highway_env_does(tmp_path, density, mode):
     """Two recorded scenes replayed on both backends from the same seeds, a random ego: the
     same windows, observations, rewards, endings and log contacts, step after step (the
