@@ -140,7 +140,8 @@ def test_sb3_trainings_side_by_side_learn_what_they_learn_alone(tmp_path):
 
     dirs = {}
     for workers in (1, 2):
-        overrides = ["agent=ppo", "profile=tiny", "env=sparse", "seeds=[0,1]", "backend=vector"]
+        overrides = ["agent=ppo", "profile=tiny", "profile.train_steps=5000", "env=sparse",
+                     "seeds=[0,1]", "backend=vector"]  # fmt: skip
         cfg = validate(compose("train", [*overrides, f"run_dir={tmp_path}/w{workers}"]))
         dirs[workers] = train_side_by_side(member_configs(cfg), workers)
     assert [d.name for d in dirs[1]] == ["sparse-behavior_rich-s0", "sparse-behavior_rich-s1"]

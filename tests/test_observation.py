@@ -163,7 +163,7 @@ def test_options_are_checked_ordered_and_left_out_of_old_run_names():
         validate(compose("train", ["agent.observation=[ttc,ttc]"]))
 
 
-@pytest.mark.parametrize("learner", ["sb3", "batched"])
+@pytest.mark.parametrize("learner", ["sb3", pytest.param("batched", marks=pytest.mark.slow)])
 def test_a_learner_with_options_trains_saves_and_is_evaluated_on_the_paper_observation(
     tmp_path, learner
 ):

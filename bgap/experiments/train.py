@@ -181,6 +181,11 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
     return run_dir
 
 
+SIDE_BY_SIDE_STEPS = 5_000
+"""Trainings shorter than this run one after the other in this process: a spawned process
+takes seconds to import torch and bgap, more than such a training lasts."""
+
+
 def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]:
     """Several SB3 trainings (:func:`member_configs`), ``workers`` at a time, each in its own
     process and run folder (:func:`member_dirs`, locked here for all of them); returns the
@@ -191,7 +196,7 @@ def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]
     cfgs = [replace(c, run_dir=str(d)) for c, d in zip(cfgs, dirs, strict=True)]
     if cfgs[0].cluster.enabled:
         return _train_on_cluster(cfgs, dirs)
-    if workers <= 1 or len(cfgs) == 1:
+    if workers <= 1 or len(cfgs) == 1 or cfgs[0].profile.train_steps < SIDE_BY_SIDE_STEPS:
         return [train(c) for c in cfgs]
     # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
     context = get_context("spawn")
