@@ -347,7 +347,7 @@ def test_batched_members_are_validated_during_training(tmp_path):
     from bgap.experiments.training import member_configs
     from tests.configs import compose
 
-    more = ["profile.eval_every_episodes=2", "profile.eval_during_training=2",
+    more = ["profile.eval_every_episodes=2", "profile.eval_during_training=1",
             "policies=[behavior_rich]"]  # fmt: skip
     cfgs = member_configs(validate(compose("train", [*_overrides(tmp_path, "v"), *more])))
     for run in train_batched(cfgs, progress=False):

@@ -118,7 +118,10 @@ def test_the_rule_columns_are_the_rule_based_egos_choice_in_the_egos_row():
     np.testing.assert_array_equal(out[:, 0, 5:].argmax(axis=1), rule_based(config)(obs))
 
 
-@pytest.mark.parametrize("options", [["closing", "ttc"], ["closing", "ttc", "rule"]])
+@pytest.mark.parametrize(
+    "options",
+    [pytest.param(["closing", "ttc"], marks=pytest.mark.slow), ["closing", "ttc", "rule"]],
+)
 def test_the_backends_agree_on_the_added_columns(options):
     """highway-env's episode and the vector backend loaded with its scene (tests/test_sim.py's
     parity), each observed through the options: the same columns, step after step, also in
