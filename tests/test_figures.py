@@ -177,3 +177,45 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
     assert "trades" in rows["bgap default DQN, recipe (main arm)"]
     assert "beaten" in rows["bgap behavior-rich DQN, authors' 2020 configuration"]
     assert speed_vs_safety(stats, tmp_path / "s.png") and (tmp_path / "s.png").stat().st_size
+
+
+def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):
+    """An evaluation folder of replay cells (bgap.evaluate's ``replay`` column), read beside a
+    simulated study: its rows become traffic ``replay/<table>/<mode>``, never a duplicate of
+    a simulated mix (its mix 0.6 is the sparse grid's duplicate of 0.5), and the claim
+    'behaviour-rich collides less than default in observed traffic' joins the Holm family
+    with the answer built in (2% against 20% on 6 x 200 episodes: holds)."""
+    from bgap.analysis.episodes import load_evaluations
+    from bgap.analysis.tables import replay_markdown
+
+    rng = np.random.default_rng(3)
+    rows = []
+    for mode in ("log", "reactive"):
+        policies = [(f"main/sparse/sparse-{f}-s{s}", r) for f, r in
+                    (("behavior_rich", 0.02), ("default", 0.2)) for s in range(6)]  # fmt: skip
+        for policy, rate in [*policies, ("rule", 0.1), ("idle", 0.3)]:
+            rows.append(pd.DataFrame({
+                "policy": policy, "mix": 0.6, "density": "sparse", "radius": 180.0,
+                "replay": f"sumo-krauss-sparse/{mode}", "seed": 100_000 + np.arange(200),
+                "crashed": rng.random(200) < rate, "avg_speed": 25.0, "lane_changes": 1,
+                "steps": 60, "distance": 1500.0, "ending": "none",
+            }))  # fmt: skip
+    folder = tmp_path / "replay"
+    folder.mkdir()
+    pd.concat(rows, ignore_index=True).to_parquet(folder / "episodes.parquet")
+    replayed, _ = load_evaluations([folder])
+    assert set(replayed.traffic) == {"replay/sumo-krauss-sparse/log",
+                                     "replay/sumo-krauss-sparse/reactive"}  # fmt: skip
+    df = pd.concat([_study(lambda *a: 0.1).assign(traffic="paper"), replayed])
+    assert duplicates(df) == {("sparse", 0.6): 0.5}  # the simulated grid's only
+    table = claims(df).set_index("claim")
+    row = table.loc["behaviour-rich collides less than default in observed traffic "
+                    "(sumo-krauss-sparse, reactive)"]  # fmt: skip
+    assert row.verdict == "holds" and row.difference == pytest.approx(-18, abs=3)
+    assert (row.n_seeds_a, row.n_episodes_a) == (6, 6 * 200)
+    assert len(table) == len(claims(df[df.traffic == "paper"])) + 2  # one Holm family
+    cells, _ = cell_stats(df)
+    assert cells[cells.traffic.str.startswith("replay/")].duplicate_of.isna().all()
+    text = replay_markdown(cells)
+    assert text.count("sumo-krauss-sparse/log") == 4  # two families and two baselines
+    assert "per 100 km" in text and "**beats**" in text  # behaviour-rich vs rule at 2% vs 10%

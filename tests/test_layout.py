@@ -196,3 +196,14 @@ def test_relock_compares_a_checkpoints_state_by_content(tmp_path):
     other_stream = state()
     other_stream["env"]["rngs"][0]["s"] = 12
     assert not _same(base, write("stream", other_stream))
+
+
+def test_the_replay_cells_in_params_name_every_replayed_table():
+    """params.yaml spells out evaluate's grid.replays (DVC builds no list from a dict): it
+    must name each table replay_data writes, at its density, under the pipeline's root."""
+    import yaml
+
+    from bgap.experiments.pipeline import replay_cells
+
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    assert params["replay"]["cells"] == replay_cells(params)

@@ -11,9 +11,11 @@ import pandas as pd
 import pytest
 import yaml
 
+from bgap.experiments.pipeline import replay_cells
 from tests.pipeline_repo import run
 
-STAGES = {"calibrate", "recipe", "train", "evaluate", "evaluate_baselines", "figures"}
+STAGES = {"calibrate", "recipe", "train", "replay_data", "evaluate", "evaluate_baselines",
+          "figures"}  # fmt: skip
 
 
 def _tiny(params: dict) -> None:
@@ -32,6 +34,10 @@ def _tiny(params: dict) -> None:
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
     params["recipe"]["sweep_episodes"] = 4
+    # replayed traffic: one short SUMO scene of one sparse table
+    params["replay"].update(scenes=1, duration=30)
+    params["replay"]["tables"] = {"sumo-idm-sparse": params["replay"]["tables"]["sumo-idm-sparse"]}
+    params["replay"]["cells"] = replay_cells(params)
 
 
 @pytest.fixture(scope="module")
@@ -82,7 +88,8 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     assert set(episodes.arm) == {"", "main", "authors"}
     cells = pd.read_csv(pipeline / "results/cells.csv")
     cells["arm"] = cells.arm.fillna("")
-    assert set(cells.traffic) == {"paper", "stock"}
+    assert set(cells.traffic) == {"paper", "stock", "replay/sumo-idm-sparse/log",
+                                  "replay/sumo-idm-sparse/reactive"}  # fmt: skip
     cells = cells[cells.traffic == "paper"]
     keys = ["arm", "family", "density", "mix", "radius"]
     want = episodes.groupby(keys).crashed.mean().mul(100).rename("want").reset_index()
@@ -102,6 +109,7 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     assert set(claims.arm) == {"main", "authors"}
     assert (claims.p_holm >= claims.p).all() and {"n_seeds_a", "n_episodes_a"} <= set(claims)
     assert set(claims.verdict) <= {"holds", "contradicted", "not significant"}
+    assert (claims.figure == "replay").sum() == 2 * 2  # both arms, both modes
     own = pd.read_csv(pipeline / "results/own_traffic.csv")
     assert set(zip(own.arm, own.family, strict=True)) == {
         ("main", "behavior_rich"), ("main", "default"), ("authors", "behavior_rich"),

@@ -159,3 +159,62 @@ def test_the_vector_backend_replays_as_highway_env_does(tmp_path, density, mode)
     assert ("window", False) in endings  # some windows ran out ...
     if density == "dense":  # ... others ended in crashes (with a log vehicle in log mode)
         assert ("crash", mode == "log") in endings
+
+
+def test_evaluation_grids_take_replay_cells_beside_simulated_ones(tmp_path):
+    """``grid.replays=[sparse:TABLE]``: each table x mode is a cell whose mix is the table's
+    labelled aggressive share (by hand from the recording's labels), whose episodes are
+    those of a plain ``traffic=replay`` rollout on the same seeds, and whose rows carry the
+    replay's name; simulated cells beside it carry "" (never a missing key)."""
+    from bgap.common.config import validate
+    from bgap.experiments.evaluate import evaluate, grid_cells, summarize
+    from tests.configs import compose
+
+    config = env_config(make_cfg("env=sparse", "env.duration=12", "mix=0.4"))
+    recorded = rollout(config, "idle", [3, 4], backend="vector", record=True).trajectories
+    table = tmp_path / "sumo-like" / "trajectories.parquet"
+    table.parent.mkdir()
+    recorded.to_parquet(table)
+    tracks = recorded.drop_duplicates(["episode", "vehicle_id"]).label.map(str)
+    share = (tracks == "aggressive").sum() / tracks.isin(["aggressive", "conservative"]).sum()
+    cfg = validate(compose("evaluate", [
+        "env=sparse", "env.duration=12", "grid.mixes=[0.0]", f"grid.replays=[sparse:{table}]",
+        "grid.modes=[log,reactive]", "traffic.min_duration=5", "backend=vector",
+    ]))  # fmt: skip
+    cells = grid_cells(cfg)
+    assert [(c.mix, c.replay) for c in cells] == [
+        (0.0, ""), (share, "sumo-like/log"), (share, "sumo-like/reactive")]  # fmt: skip
+    episodes = evaluate(cfg, {"idle": "idle"}, episodes=3, progress=False)
+    names = ["", "sumo-like/log", "sumo-like/reactive"]
+    assert list(episodes.replay) == [name for name in names for _ in range(3)]
+    plain = validate(compose("evaluate", [  # the same run with traffic=replay, one table
+        "env=sparse", "env.duration=12", "traffic=replay", f"traffic.table={table}",
+        "traffic.mode=reactive", "traffic.min_duration=5", "backend=vector",
+    ]))  # fmt: skip
+    seeds = [cfg.eval_seed + k for k in range(3)]
+    direct = rollout(env_config(plain), "idle", seeds, "vector").episodes
+    mine = episodes[episodes.replay == "sumo-like/reactive"].reset_index(drop=True)
+    for col in ("steps", "crashed", "avg_speed", "return"):
+        assert mine[col].tolist() == direct[col].tolist()
+    assert len(summarize(episodes)) == 3
+
+
+@pytest.mark.parametrize(
+    "overrides,message",
+    [
+        (["grid.replays=[sparse:/nowhere.parquet]"], "no such trajectory table"),
+        (["grid.replays=[nodensity:{table}]"], "has no preset env/nodensity.yaml"),
+        (["grid.simulated=false"], "needs replays"),
+        (["grid.replays=[{table}]", "grid.modes=[live]"], "each one of"),
+    ],
+)
+def test_bad_replay_grids_fail_in_one_line(tmp_path, overrides, message):
+    from bgap.common.config import validate
+    from bgap.common.errors import ConfigError
+    from tests.configs import compose
+
+    table = tmp_path / "t.parquet"
+    _follower_table(table)
+    with pytest.raises(ConfigError, match=message) as err:
+        validate(compose("evaluate", [o.format(table=table) for o in overrides]))
+    assert "\n" not in str(err.value)

@@ -83,6 +83,15 @@ def evaluation_folders(source: str | Path) -> list[Path]:
     return found
 
 
+REPLAY = "replay/"
+"""Prefix of a replay cell's traffic, ``replay/<table>/<mode>`` (:mod:`bgap.traffic.replay`)."""
+
+
+def is_replay(traffic: pd.Series) -> pd.Series:
+    """Whether each row's traffic is a replayed table."""
+    return traffic.astype(str).str.startswith(REPLAY)
+
+
 def traffic_of(folder: Path) -> str:
     """``stock`` for an evaluation in highway-env's stock traffic (its saved
     ``behavior.name``), else ``paper`` (the behaviour presets of the grid)."""
@@ -106,6 +115,9 @@ def load_evaluations(
             path = next(folder / n for n in EPISODE_FILES if (folder / n).exists())
             df = read_table(path)
             df["traffic"] = forced or traffic_of(folder)
+            if "replay" in df:  # replay cells (issue 37): traffic "replay/<table>/<mode>"
+                replayed = df.replay.fillna("").astype(str) != ""
+                df.loc[replayed, "traffic"] = REPLAY + df.replay[replayed].astype(str)
             frames.append(df)
             if (folder / MODELS).exists():
                 models.append(read_table(folder / MODELS))
@@ -141,6 +153,8 @@ def duplicates(df: pd.DataFrame) -> dict[tuple[str, float], float]:
     aggressive drivers, e.g. 3 of 5 at mixes 0.5 and 0.6): such a cell repeats the other's
     episodes and is counted once in averages over mixes."""
     out = {}
+    if "traffic" in df:  # a replay's mix is its table's share: it repeats no simulated cell
+        df = df[~is_replay(df.traffic)]
     for density in sorted(set(df.density)):
         seen: dict[int, float] = {}
         n = n_of(density)
@@ -217,6 +231,7 @@ def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         if "ending" in episodes:
             share = episodes.ending.value_counts(normalize=True)
             row |= {f"{k}_pct": 100.0 * float(share.get(k, 0.0)) for k in CRASH_KINDS}
-        row["duplicate_of"] = dup.get((row["density"], row["mix"]), np.nan)
+        replayed = str(row.get("traffic", "")).startswith(REPLAY)
+        row["duplicate_of"] = np.nan if replayed else dup.get((row["density"], row["mix"]), np.nan)
         rows.append(row)
     return pd.DataFrame(rows), per_seed

@@ -4,13 +4,14 @@ figures."""
 from __future__ import annotations
 
 from bgap.analysis.claims import ablation_table
-from bgap.analysis.episodes import ALPHA, duplicates, n_of
+from bgap.analysis.episodes import ALPHA, duplicates, is_replay, n_of
 from bgap.analysis.stats import RULE_FLOOR
 from bgap.analysis.tables import (
     claims_markdown,
     departures_markdown,
     own_markdown,
     paper_comparison,
+    replay_markdown,
     rule_markdown,
     selection_markdown,
     table2,
@@ -33,7 +34,8 @@ def readme(df, stats, table, own, sources, models, paths) -> str:
         "Source: "
         + ", ".join(f"`{s}`" for s in sources)
         + f": {len(df):,} evaluation episodes ({(df.traffic == 'stock').sum():,} of them in "
-        f"stock traffic); training seeds per policy and arm: {sizes}. "
+        f"stock traffic, {is_replay(df.traffic).sum():,} in replayed traffic); training seeds "
+        f"per policy and arm: {sizes}. "
         f"Figures: {figures}. Per-cell numbers: `cells.csv` (with `n_seeds`, `n_episodes`); "
         f"claims: `claims.csv`; own traffic: `own_traffic.csv`.\n",
         f"Cells that repeat another cell's traffic (the same number of aggressive drivers, "
@@ -56,6 +58,17 @@ def readme(df, stats, table, own, sources, models, paths) -> str:
         "trades. Point estimates decide; intervals in `cells.csv` (`per_100km_lo`, "
         "`per_100km_hi`) and in `figures/speed_vs_safety.png`.\n",
         rule_markdown(stats),
+        "## In observed traffic (replayed tables)\n",
+        "The paper's premise is that behaviour-rich training prepares a policy for real "
+        "traffic. Here every policy drives among recorded vehicles (issue 37): tables of SUMO "
+        "runs with bgap's fixed validation drivers (`replay_data@<table>`), the ego put in "
+        "place of a recorded vehicle for at most the episode's duration; `log`: the recorded "
+        "vehicles follow their log whatever the ego does (a crash may be a log vehicle "
+        "running into the ego), `reactive`: one behind the ego takes over with IDM. Each "
+        "model plays the tables of its own density; every policy meets the same seeded "
+        "windows. The aggressive share is the table's labels'. The claim 'behaviour-rich "
+        "collides less than default in observed traffic' joins the Holm family below.\n",
+        replay_markdown(stats),
         "## The paper's claims\n",
         "a - b as the claim reads (collision percentage points, m/s or lane changes per "
         "episode). Training seeds are the independent units: two-level bootstrap (seeds, then "

@@ -95,3 +95,13 @@ def _claims_for(radii: list[float], mixes: list[float]) -> list[Claim]:
 
 CLAIMS = _claims_for
 """The claims table's rows (per arm that trains both families, per density)."""
+
+
+def replay_claim(traffic: str) -> Claim:
+    """The paper's premise read in observed traffic (issue 37; not in the paper): a replayed
+    table (``traffic`` = ``replay/<table>/<mode>``), each family's models of the table's
+    density on the same seeded windows; different trainings, so unpaired."""
+    table, mode = traffic.split("/")[1:3]
+    return Claim(f"behaviour-rich collides less than default in observed traffic ({table}, "
+                 f"{mode})", "replay", "collision_pct", {"family": "behavior_rich"},
+                 {"family": "default"}, -1, "unpaired", "not tested (its premise)")  # fmt: skip

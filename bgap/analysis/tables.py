@@ -7,9 +7,10 @@ import json
 
 import pandas as pd
 
-from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, n_of, policy_parts
+from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, REPLAY, is_replay, n_of, policy_parts
 from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
 from bgap.analysis.stats import versus_rule
+from bgap.common.vocab import CRASH_KINDS
 
 
 # ---------------------------------------------------------------------- tables
@@ -210,3 +211,38 @@ def rule_markdown(stats: pd.DataFrame) -> str:
         order = sorted(lines[3:], key=lambda line: ("(baseline)" in line, line))
         parts.append("\n".join(lines[:3] + order) + "\n")
     return "\n".join(parts) if parts else "(no rule-based ego in the evaluations)\n"
+
+
+def replay_markdown(stats: pd.DataFrame) -> str:
+    """Every policy in replayed (observed) traffic, one table per density: per replayed table
+    and mode, collision % and collisions per 100 km with their intervals, mean speed, the
+    split of the crashes by kind, and the verdict against the rule-based ego on the same
+    windows."""
+    g = stats[is_replay(stats.traffic)] if len(stats) else stats
+    if g.empty:
+        return "(no replay cells in the evaluations)\n"
+    kinds = [k for k in CRASH_KINDS if f"{k}_pct" in g]
+    parts = []
+    for density in [d for d in ("sparse", "dense") if d in set(g.density)]:
+        here = g[g.density == density].sort_values(["traffic", "arm", "family"], key=_arm_order)
+        lines = [f"**{density} (the {n_of(density)}-vehicle observation)**\n",
+                 "| replayed table / mode | aggressive share | policy | collision % [95% CI] | "
+                 "per 100 km [95% CI] | m/s | crashes %: " + " / ".join(kinds) + " | against "
+                 "the rule-based ego |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for traffic, t in here.groupby("traffic", sort=False):
+            rule = t[t.family == "rule"]
+            for r in t.itertuples():
+                verdict = "-"
+                if r.family != "rule" and len(rule):
+                    b = rule.iloc[0]
+                    verdict = SYMBOLS[versus_rule(r.per_100km, r.avg_speed, b.per_100km,
+                                                  b.avg_speed)]  # fmt: skip
+                split = " / ".join(f"{getattr(r, f'{k}_pct'):.0f}" for k in kinds)
+                lines.append(
+                    f"| {traffic[len(REPLAY) :]} | {r.mix:.2f} | {_label(r.arm, r.family)} | "
+                    f"{r.collision_pct:.1f} [{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}]"
+                    f" | {r.per_100km:.1f} [{r.per_100km_lo:.1f}, {r.per_100km_hi:.1f}] | "
+                    f"{r.avg_speed:.2f} | {split} | {verdict} |"
+                )
+        parts.append("\n".join(lines) + "\n")
+    return "\n".join(parts)

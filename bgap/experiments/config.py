@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Optional
 
 from omegaconf import DictConfig
@@ -22,6 +23,8 @@ from bgap.common.vocab import (
 )
 from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
 from bgap.sim.config import BaseConfig
+from bgap.traffic.replay import MODES, load_replay
+from bgap.traffic.scenario import env_preset
 
 
 @dataclass
@@ -68,6 +71,15 @@ class GridConfig:
     densities: list[str] = field(default_factory=list)
     """Names of ``env`` presets (``sparse``, ``dense``)."""
     radii: list[float] = field(default_factory=list)
+    simulated: bool = True
+    """Whether the grid holds the simulated cells (mixes x densities x radii); ``false``:
+    only its replays."""
+    replays: list[str] = field(default_factory=list)
+    """Cells of replayed traffic (issue 37, :mod:`bgap.traffic.replay`): trajectory tables,
+    each ``DENSITY:PATH`` (the ``env`` preset the cell runs: its observation, so the models of
+    that density play it, and its duration) or ``PATH`` (the run's own density)."""
+    modes: list[str] = field(default_factory=lambda: ["log"])
+    """``traffic.mode`` of the replay cells: ``log``, ``reactive``, or both."""
 
     def __post_init__(self) -> None:
         self.mixes = [m + 0.0 for m in self.mixes]  # -0.0 is 0.0
@@ -76,6 +88,30 @@ class GridConfig:
             check(0 <= m <= 1, "grid.mixes", self.mixes, "every mix must lie in [0, 1]")
         for r in self.radii:
             check(r > 0, "grid.radii", self.radii, "every radius must be positive")
+        for m in self.modes:
+            check(m in MODES, "grid.modes", self.modes, f"each one of {MODES}")
+        check(bool(self.modes), "grid.modes", self.modes, f"give at least one of {MODES}")
+        check(
+            self.simulated or bool(self.replays),
+            "grid.replays",
+            self.replays,
+            "a grid without simulated cells (grid.simulated=false) needs replays: "
+            "grid.replays=[dense:PATH,...]",
+        )
+        for density, table in self.replay_tables():
+            if density is not None:
+                env_preset(density)  # one line naming the presets when there is none
+            check(Path(table).is_file(), "grid.replays", table, "no such trajectory table")
+
+    def replay_tables(self) -> list[tuple[Optional[str], str]]:
+        """``grid.replays`` as (density or None for the run's own, table path)."""
+        out = []
+        for entry in self.replays:
+            density, sep, table = str(entry).partition(":")
+            # a path with a colon of its own (C:/...) keeps it: a density is a preset name
+            named = bool(sep) and "/" not in density and "\\" not in density and len(density) > 1
+            out.append((density, table) if named else (None, str(entry)))
+        return out
 
 
 @dataclass
@@ -192,6 +228,9 @@ class ExperimentConfig(BaseConfig):
             f"must be at least 10000 away from eval_seed={self.eval_seed} (validation and test "
             "episodes never share seeds)",
         )
+        for density, table in self.grid.replay_tables():  # a table no episode can come from
+            env = env_preset(density) if density else self.env  # fails here, in one line
+            load_replay(table, env.simulation_frequency, self.traffic.min_duration)
 
 
 @dataclass

@@ -39,31 +39,70 @@ from bgap.common.runs import CONFIG, MODEL, model_file, save_run_metadata, write
 from bgap.common.tables import read_table
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
+from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import env_config, env_preset
 
 
 @dataclass(frozen=True)
 class Cell:
+    """One evaluation cell: simulated traffic at a mix, or a replayed table (``table``,
+    ``mode``; its ``mix`` is the table's aggressive share)."""
+
     mix: float
     density: str
     radius: float
+    table: str = ""
+    mode: str = ""
+
+    @property
+    def replay(self) -> str:
+        """The replay cell's name in the episode tables, ``<table>/<mode>`` (a table named
+        ``trajectories.*`` by its folder's name); "" for simulated traffic."""
+        if not self.table:
+            return ""
+        path = Path(self.table)
+        name = path.parent.name if path.stem == "trajectories" else path.stem
+        return f"{name}/{self.mode}"
 
 
 def grid_cells(cfg: ExperimentConfig) -> list[Cell]:
-    """The cells of ``cfg.grid``; empty axes take the run's own mix, density and radius."""
+    """The cells of ``cfg.grid``; empty axes take the run's own mix, density and radius.
+    Replay cells (``grid.replays``) follow the simulated ones: each table x mode x radius."""
     g = cfg.grid
-    return [
+    cells = [
         Cell(float(m), str(d), float(r))
         for d in (g.densities or [cfg.env.name])
         for m in (g.mixes or [cfg.mix])
         for r in (g.radii or [cfg.radius])
-    ]
+    ] if g.simulated else []  # fmt: skip
+    for density, table in g.replay_tables():
+        env = env_preset(density) if density else cfg.env
+        share = replay_mix(table, env.simulation_frequency, cfg.traffic.min_duration)
+        cells += [Cell(share, env.name, float(r), table, mode)
+                  for mode in g.modes for r in (g.radii or [cfg.radius])]  # fmt: skip
+    return cells
+
+
+def replay_mix(table: str, simulation_frequency: float, min_duration: float) -> float:
+    """A replayed table's aggressive share (:meth:`bgap.traffic.replay.Replay.aggressive_share`)
+    from its labels."""
+    share = load_replay(table, simulation_frequency, min_duration).aggressive_share()
+    if share is None:
+        raise ConfigError(
+            f"grid.replays: {table} has no aggressive/conservative labels, so its cells have no "
+            "mix; label its vehicles (a label column) or replay it with traffic.table= instead"
+        )
+    return share
 
 
 def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
     """highway-env config of one cell: the run's reward and behaviours, the cell's traffic."""
     env = cfg.env if cell.density == cfg.env.name else env_preset(cell.density)
-    return env_config(replace(cfg, env=env, mix=cell.mix, radius=cell.radius))
+    traffic = cfg.traffic
+    if cell.table:
+        traffic = replace(traffic, name="replay", source="replay", table=cell.table,
+                          mode=cell.mode)  # fmt: skip
+    return env_config(replace(cfg, env=env, mix=cell.mix, radius=cell.radius, traffic=traffic))
 
 
 def _evaluate_chunk(
@@ -73,6 +112,8 @@ def _evaluate_chunk(
     if rows is not None and rows != env_cfg["observation"]["vehicles_count"]:
         return []  # a model sees a fixed number of vehicles: only its own density
     key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}
+    if cell.table:
+        key["replay"] = cell.replay
     episodes = rollout(env_cfg, policy, seeds, backend).episodes
     # the speed samples avg_speed averages, one per policy step, times the step's duration
     episodes["distance"] = episodes.avg_speed * episodes.steps / env_cfg["policy_frequency"]
@@ -180,6 +221,8 @@ def evaluate(
             rows.extend(_evaluate_chunk(*job))
             bar.update(chunk)
     bar.close()
+    if any(c.table for c in cells):  # simulated cells beside replays: "" (never a NaN key)
+        rows = [{**row, "replay": row.get("replay", "")} for row in rows]
     return pd.DataFrame(rows)
 
 
@@ -204,13 +247,14 @@ def compact(episodes: pd.DataFrame) -> pd.DataFrame:
 def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
     """Per policy and cell: collision %, average speed, lane changes, each with a 95% CI."""
     rows = []
-    for key, g in episodes.groupby(["policy", "mix", "density", "radius"], sort=False):
+    keys = ["policy", "mix", "density", "radius", *(["replay"] if "replay" in episodes else [])]
+    for key, g in episodes.groupby(keys, sort=False):
         crashes, n = int(g.crashed.sum()), len(g)
         lo, hi = wilson_interval(crashes, n)
         s_lo, s_hi = t_interval(g.avg_speed.to_numpy())
         l_lo, l_hi = t_interval(g.lane_changes.to_numpy(dtype=float))
         rows.append(
-            dict(zip(["policy", "mix", "density", "radius"], key, strict=True))
+            dict(zip(keys, key, strict=True))
             | {
                 "episodes": n,
                 "collision_pct": 100.0 * crashes / n,
@@ -265,16 +309,20 @@ def format_table(summary: pd.DataFrame) -> str:
     split = all(f"{kind}_pct" in summary for kind in CRASH_KINDS)
     km = "per_100km" in summary
     w = max(15, *(len(str(p)) + 1 for p in summary.policy))
+    replays = summary.replay.fillna("") if "replay" in summary else pd.Series("", summary.index)
+    rw = max(len(x) for x in replays) + 2 if replays.any() else 0  # the replay cells' names
     lines = [
-        f"{'policy':<{w}}{'mix':>5}{'density':>9}{'radius':>8}{'episodes':>9}"
+        f"{'policy':<{w}}{'traffic' if rw else '':<{rw}}{'mix':>5}{'density':>9}{'radius':>8}"
+        f"{'episodes':>9}"
         f"{'collisions %':>22}"
         + (f"{'per 100 km':>22}" if km else "")
         + f"{'speed m/s':>20}{'lane changes':>20}"
         + ("   crashes %: rear-end / rear-ended / lane change / other" if split else "")
     ]
-    for r in summary.itertuples():
+    for r, replay in zip(summary.itertuples(), replays, strict=True):
         lines.append(
-            f"{r.policy:<{w}}{r.mix:>5.2f}{r.density:>9}{r.radius:>8.0f}{r.episodes:>9}"
+            f"{r.policy:<{w}}{(replay or 'simulated') if rw else '':<{rw}}{r.mix:>5.2f}"
+            f"{r.density:>9}{r.radius:>8.0f}{r.episodes:>9}"
             f"{r.collision_pct:>8.1f} [{r.collision_lo:5.1f},{r.collision_hi:5.1f}]"
             + (f"{r.per_100km:>8.1f} [{r.per_100km_lo:5.1f},{r.per_100km_hi:5.1f}]" if km else "")
             + f"{r.avg_speed:>8.2f} [{r.speed_lo:5.2f},{r.speed_hi:5.2f}]"
@@ -305,14 +353,15 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> bool:
         ("avg_speed", "speed_lo", "speed_hi", "ego speed [m/s]"),
         ("lane_changes", "lane_changes_lo", "lane_changes_hi", "lane changes / episode"),
     ]
-    cells = summary[["mix", "density", "radius"]].drop_duplicates().to_records(index=False)
+    keys = ["mix", "density", "radius", *(["replay"] if "replay" in summary else [])]
+    cells = [tuple(c) for c in summary[keys].drop_duplicates().itertuples(index=False)]
     policies = list(dict.fromkeys(summary.policy))
     fig, axes = plt.subplots(1, 3, figsize=(4 + 1.2 * len(cells) * len(policies) / 2, 3.8))
     width = 0.8 / len(policies)
     for ax, (col, lo, hi, label) in zip(axes, metrics, strict=True):
         for p_i, pol in enumerate(policies):
-            sub = summary[summary.policy == pol].set_index(["mix", "density", "radius"])
-            vals = [sub.loc[tuple(c)] if tuple(c) in sub.index else None for c in cells]
+            sub = summary[summary.policy == pol].set_index(keys)
+            vals = [sub.loc[c] if c in sub.index else None for c in cells]
             x = np.arange(len(cells)) + p_i * width
             y = [v[col] if v is not None else np.nan for v in vals]
             err = np.array(
@@ -320,7 +369,7 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> bool:
             ).T
             ax.bar(x, y, width, yerr=np.nan_to_num(err), capsize=2, label=pol)
         ax.set_xticks(np.arange(len(cells)) + 0.4 - width / 2)
-        ax.set_xticklabels([f"{d}\nmix {m:g}\nr {r:g}" for m, d, r in cells], fontsize=7)
+        ax.set_xticklabels([_cell_label(*c) for c in cells], fontsize=7)
         ax.set_ylabel(label)
     axes[0].legend(fontsize=7)
     if title:
@@ -329,6 +378,12 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> bool:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return True
+
+
+def _cell_label(mix: float, density: str, radius: float, replay: str = "") -> str:
+    if replay:  # a replay's mix is its table's aggressive share
+        return f"{replay}\n{density}\nmix {mix:.2f}\nr {radius:g}"
+    return f"{density}\nmix {mix:g}\nr {radius:g}"
 
 
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:

@@ -159,6 +159,15 @@ LAST = ("recipe", "calibrate")
 """Stages rehearsed after all others: they rewrite presets other stages read."""
 
 
+def replay_cells(params: dict) -> str:
+    """``replay.cells`` as params.yaml must hold it: every table of ``replay.tables`` as
+    ``density:<root>/replay/<table>/trajectories.parquet`` (evaluate's ``grid.replays``;
+    DVC builds no list from a dict, so params.yaml spells it out)."""
+    tables = params["replay"]["tables"]
+    return "[" + ",".join(f"{t['density']}:{params['root']}/replay/{k}/trajectories.parquet"
+                          for k, t in tables.items()) + "]"  # fmt: skip
+
+
 def rehearsal(params: dict) -> None:
     """Shrink ``params`` (params.yaml) in place to a rehearsal of every stage that finishes in
     minutes: the tiny profile and grid, one seed per training, a few trials and episodes.
@@ -178,6 +187,8 @@ def rehearsal(params: dict) -> None:
         learner.update(check_seeds="[0,1]", sweep_episodes=4)
     params["parity"] = {"episodes": 2, "duration": 2}
     params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
+    if "replay" in params:  # (commits before issue 37's replay cells have none)
+        params["replay"].update(scenes=1, duration=30)
     search = params["cmetric_search"]
     search.update(trials=2, radii="[null]")
     for item in (*search["data"].values(), *search["sumo"].values()):

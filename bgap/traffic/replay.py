@@ -33,7 +33,7 @@ import pandas as pd
 
 from bgap.common.errors import TrajectoryError, check
 from bgap.common.tables import load_trajectories
-from bgap.common.vocab import LANE_WIDTH
+from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, LABEL_NAMES, LANE_WIDTH
 
 SOURCES = ("simulated", "replay")
 MODES = ("log", "reactive")
@@ -168,6 +168,16 @@ class Replay:
             )
         if max(len(scene.ids) for scene in self.scenes) < 2:
             raise TrajectoryError(f"{name}: every scene holds one vehicle; nothing to replay")
+
+    def aggressive_share(self) -> Optional[float]:
+        """Share of the recorded vehicles labelled aggressive among those labelled aggressive
+        or conservative (each track once; the ego of a recording left out): the replay's
+        ``mix``, comparable with the simulated mixes. None when the table has no such
+        labels."""
+        names = [LABEL_NAMES.get(int(x), x) if str(x).isdigit() else x
+                 for scene in self.scenes for x in scene.labels if x is not None]  # fmt: skip
+        classed = [x for x in names if x in (AGGRESSIVE, CONSERVATIVE)]
+        return classed.count(AGGRESSIVE) / len(classed) if classed else None
 
     def most_vehicles(self, frames: int) -> int:
         """The most recorded vehicles any window of ``frames`` + 1 frames meets (the vector
