@@ -13,8 +13,15 @@ if "PYTEST_XDIST_WORKER" in os.environ:
     for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
 
+import glob  # noqa: E402
+import shutil  # noqa: E402
+import socket  # noqa: E402
+import subprocess  # noqa: E402
+import tempfile  # noqa: E402
+from pathlib import Path  # noqa: E402
+
 import numpy as np  # noqa: E402
-import pytest
+import pytest  # noqa: E402
 
 from bgap.common.config import validate
 from bgap.datasets.config import SimulateConfig
@@ -93,3 +100,47 @@ def lane_changes(table) -> np.ndarray:
     same = (ordered.episode.diff() == 0) & (ordered.vehicle_id.diff() == 0)
     changed = same & (ordered.lane.diff() != 0)
     return changed.groupby([ordered.episode, ordered.vehicle_id]).sum()
+
+
+# ------------------------------------------------ PostgreSQL (sweeps' shared storage)
+def _pg_bin() -> Path | None:
+    found = shutil.which("initdb")
+    if found:
+        return Path(found).resolve().parent
+    candidates = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
+    return Path(candidates[-1]).parent if candidates else None
+
+
+@pytest.fixture(scope="module")
+def postgres():
+    """A throwaway PostgreSQL server on localhost (installed by .ci/run from Debian)."""
+    bindir = _pg_bin()
+    if bindir is None:
+        pytest.skip("PostgreSQL is not installed (.ci/run installs Debian's postgresql)")
+    pytest.importorskip("psycopg", reason="psycopg[binary] is in the dev extra")
+    data = Path(tempfile.mkdtemp(prefix="bgap-pg-"))  # outside pytest's private tmp dirs
+    as_user: list[str] = []
+    if os.geteuid() == 0:  # PostgreSQL refuses to run as root
+        if shutil.which("runuser") is None:
+            pytest.skip("running as root without runuser: cannot start PostgreSQL")
+        shutil.chown(data, "postgres")
+        as_user = ["runuser", "-u", "postgres", "--"]
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    run = lambda *a: subprocess.run([*as_user, *a], check=True, capture_output=True)  # noqa: E731
+    run(str(bindir / "initdb"), "-D", str(data / "db"), "-A", "trust", "-U", "bgap")
+    run(
+        str(bindir / "pg_ctl"),
+        "-D",
+        str(data / "db"),
+        "-w",
+        "-l",
+        str(data / "log"),
+        "-o",
+        f"-p {port} -k {data} -c listen_addresses=127.0.0.1",
+        "start",
+    )
+    yield f"postgresql://bgap@127.0.0.1:{port}/postgres"
+    run(str(bindir / "pg_ctl"), "-D", str(data / "db"), "-m", "fast", "stop")
+    shutil.rmtree(data, ignore_errors=True)

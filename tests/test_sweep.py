@@ -2,14 +2,9 @@
 
 from __future__ import annotations
 
-import glob
-import os
-import shutil
 import signal
-import socket
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -109,49 +104,6 @@ def test_bad_search_spaces_fail_before_training(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------- PostgreSQL workers
-def _pg_bin() -> Path | None:
-    found = shutil.which("initdb")
-    if found:
-        return Path(found).resolve().parent
-    candidates = sorted(glob.glob("/usr/lib/postgresql/*/bin/initdb"))
-    return Path(candidates[-1]).parent if candidates else None
-
-
-@pytest.fixture(scope="module")
-def postgres():
-    """A throwaway PostgreSQL server on localhost (installed by .ci/run from Debian)."""
-    bindir = _pg_bin()
-    if bindir is None:
-        pytest.skip("PostgreSQL is not installed (.ci/run installs Debian's postgresql)")
-    pytest.importorskip("psycopg", reason="psycopg[binary] is in the dev extra")
-    data = Path(tempfile.mkdtemp(prefix="bgap-pg-"))  # outside pytest's private tmp dirs
-    as_user: list[str] = []
-    if os.geteuid() == 0:  # PostgreSQL refuses to run as root
-        if shutil.which("runuser") is None:
-            pytest.skip("running as root without runuser: cannot start PostgreSQL")
-        shutil.chown(data, "postgres")
-        as_user = ["runuser", "-u", "postgres", "--"]
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    run = lambda *a: subprocess.run([*as_user, *a], check=True, capture_output=True)  # noqa: E731
-    run(str(bindir / "initdb"), "-D", str(data / "db"), "-A", "trust", "-U", "bgap")
-    run(
-        str(bindir / "pg_ctl"),
-        "-D",
-        str(data / "db"),
-        "-w",
-        "-l",
-        str(data / "log"),
-        "-o",
-        f"-p {port} -k {data} -c listen_addresses=127.0.0.1",
-        "start",
-    )
-    yield f"postgresql://bgap@127.0.0.1:{port}/postgres"
-    run(str(bindir / "pg_ctl"), "-D", str(data / "db"), "-m", "fast", "stop")
-    shutil.rmtree(data, ignore_errors=True)
-
-
 def _worker(tmp_path: Path, url: str, trials: int, study: str) -> subprocess.Popen:
     cmd = [
         sys.executable,

@@ -121,10 +121,11 @@ def run_tasks(
     fn: Callable[..., Any],
     calls: Sequence[tuple],
     done: Callable[[int, Any], None] | None = None,
+    kept: str = "",
 ) -> list[Any]:
     """``fn(*call)`` for every call as Ray tasks of ``cfg``'s resources; the results in the
     order of ``calls`` (``done(k, result)`` as each arrives, for progress). Ctrl-C cancels
-    the tasks still running and says so."""
+    the tasks still running and says so, and what was kept (``kept``)."""
     with connected(cfg) as ray:
         remote = ray.remote(fn).options(
             num_cpus=cfg.cpus, num_gpus=cfg.gpus, max_retries=cfg.retries
@@ -150,6 +151,6 @@ def run_tasks(
                 ray.cancel(ref, force=True)
             raise Interrupted(
                 f"stopped: {len(refs) - len(pending)} of {len(refs)} tasks had finished; the "
-                "cluster's others were cancelled"
+                "cluster's others were cancelled" + (f"; {kept}" if kept else "")
             ) from None
         return results

@@ -286,6 +286,15 @@ class SweepConfig(ExperimentConfig):
             self.policy,
             "mode=rule trains both policies of each trial: leave policy=behavior_rich",
         )
+        shared = self.storage and not self.storage.startswith("sqlite")
+        check(
+            self.cluster.address in ("", "local") or bool(shared),
+            "storage",
+            self.storage,
+            f"cluster.address={self.cluster.address} runs the sweep's workers on several nodes, "
+            "which cannot share a SQLite file: give storage=postgresql://... (or journal:PATH "
+            "on a file system every node sees)",
+        )
 
 
 @dataclass

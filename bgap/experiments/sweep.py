@@ -34,6 +34,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import baseline, load_model, rollout
 from bgap.analysis.stats import constrained_score, per_100km, rule_objective
+from bgap.common import studies
+from bgap.common.cluster import ClusterConfig, run_tasks
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -282,6 +284,12 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
         None if multi else optuna.pruners.MedianPruner(n_startup_trials=5),
     )
     finished = (TrialState.COMPLETE, TrialState.PRUNED)
+    if cfg.cluster.enabled:  # cfg.workers Optuna workers as Ray tasks, one shared study
+        url = cfg.storage or sqlite_url(root)
+        calls = [(cfg, url, studies.HEARTBEAT)] * cfg.workers
+        kept = f"every finished trial is kept in the study ({url}); rerun to continue"
+        run_tasks(cfg.cluster, _sweep_worker, calls, kept=kept)
+        return study
     run_until(
         study,
         lambda t: run_trial(t, cfg, space, root),
@@ -291,6 +299,18 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
         (ValueError,),
     )
     return study
+
+
+def _sweep_worker(cfg: SweepConfig, url: str, heartbeat: tuple[int, int]) -> int:
+    """On a node: one Optuna worker of ``cfg``'s study in ``url``, trials until the study holds
+    them all (a retried worker fails the trials a dead one left running, once their heartbeat
+    is stale: RDB storages only). Returns its node's count of finished trials."""
+    import torch
+
+    torch.set_num_threads(1)
+    studies.HEARTBEAT = heartbeat  # the driver's (the tests shorten it)
+    study = sweep(replace(cfg, cluster=ClusterConfig(), storage=url), progress=False)
+    return len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)))
 
 
 def finished(study: optuna.Study, cfg: SweepConfig) -> bool:

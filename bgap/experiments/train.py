@@ -245,7 +245,14 @@ def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Pa
             bar.write(f"finished: {todo[k][0].policy} seed {todo[k][0].seed} in {todo[k][1]}")
             bar.update()
 
-        run_tasks(cluster, _train_task, calls, done)
+        kept = (
+            f"the finished trainings are in their run folders, the others' last checkpoints "
+            f"in {cluster.storage} (cluster.storage): rerun the same command with resume=true"
+            if cluster.storage
+            else "the finished trainings are in their run folders; the others kept nothing "
+            "(cluster.storage keeps their checkpoints): rerun the same command with resume=true"
+        )
+        run_tasks(cluster, _train_task, calls, done, kept)
         bar.close()
     return dirs
 
