@@ -7,6 +7,9 @@
                                     # learner with K = 1, 4, 10, 20 members, dense traffic
     python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
                                     # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
+    python -m bgap.bench cluster --seconds 60   # the same 4 trainings on a local Ray cluster
+                                    # of 1 node, then 2 nodes (one CPU each; the cluster extra;
+                                    # each task's start costs seconds: give trainings a minute)
 
 Figures are reported beside a baseline measured in the same run, since machines are noisy.
 """
@@ -434,6 +437,42 @@ def _print_replay_rates(k: int, seconds: float, n: int = 15_000, batch: int = 32
     print(f"  sum trees: {rates['sum trees'] / rates['cumulative sum']:.1f}x")
 
 
+def bench_cluster(seconds: float, trainings: int = 4) -> None:
+    """``trainings`` SB3 trainings (seeds 0, 1, ...; sparse, vector backend; each about
+    ``seconds`` of one core) as Ray tasks on a local cluster of one node, then of two
+    (``ray.cluster_utils.Cluster``: separate node processes, one CPU each, a head without
+    CPUs for the driver). Prints each wall time, with the cluster's start-up apart, and the
+    ratio of the throughputs."""
+    from ray.cluster_utils import Cluster
+
+    from bgap.experiments.train import train_side_by_side
+    from bgap.experiments.training import member_configs
+
+    steps = max(300, int(seconds * 150))  # ~150 steps/s for one training on one core
+    walls = {}
+    for nodes in (1, 2):
+        start = time.perf_counter()
+        cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 0})
+        for _ in range(nodes):
+            cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        up = time.perf_counter() - start
+        with tempfile.TemporaryDirectory() as tmp:
+            cfg = validate(compose_training("train", [
+                "profile=tiny", f"profile.train_steps={steps}", "env=sparse", "backend=vector",
+                f"seeds=[{','.join(map(str, range(trainings)))}]", f"run_dir={tmp}/runs",
+                f"cluster.address={cluster.address}",
+            ]))  # fmt: skip
+            start = time.perf_counter()
+            train_side_by_side(member_configs(cfg), 1)
+            walls[nodes] = time.perf_counter() - start
+        cluster.shutdown()
+        print(f"{nodes} node(s): {trainings} trainings of {steps} steps in {walls[nodes]:.1f} s "
+              f"({trainings * steps / walls[nodes]:.0f} steps/s; the cluster started in "
+              f"{up:.1f} s)", flush=True)  # fmt: skip
+    print(f"2 nodes / 1 node throughput: {walls[1] / walls[2]:.2f}x")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
         prog="bgap.bench",
@@ -455,11 +494,16 @@ def main(argv: list[str] | None = None) -> None:
         default=[1, 4, 10, 20],
         help="learn: values of K",
     )
+    parser.add_argument(
+        "--trainings", type=positive(int), default=4, help="cluster: trainings per cluster"
+    )
     args = parser.parse_args(argv)
     if args.what == "sim":
         bench_sim(args.seconds, num_envs=args.envs, threads=args.threads)
     elif args.what == "learn":
         bench_learn(args.seconds, tuple(args.members))
+    elif args.what == "cluster":
+        bench_cluster(args.seconds, args.trainings)
     else:
         BENCHES[args.what](args.seconds)
 
@@ -469,6 +513,7 @@ BENCHES: dict[str, Callable[[float], None]] = {
     "cmetric": bench_cmetric,
     "sim": bench_sim,
     "learn": bench_learn,
+    "cluster": bench_cluster,
 }
 
 if __name__ == "__main__":

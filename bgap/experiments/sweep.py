@@ -305,9 +305,6 @@ def _sweep_worker(cfg: SweepConfig, url: str, heartbeat: tuple[int, int]) -> int
     """On a node: one Optuna worker of ``cfg``'s study in ``url``, trials until the study holds
     them all (a retried worker fails the trials a dead one left running, once their heartbeat
     is stale: RDB storages only). Returns its node's count of finished trials."""
-    import torch
-
-    torch.set_num_threads(1)
     studies.HEARTBEAT = heartbeat  # the driver's (the tests shorten it)
     study = sweep(replace(cfg, cluster=ClusterConfig(), storage=url), progress=False)
     return len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)))

@@ -260,7 +260,6 @@ def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Pa
 def _train_task(cfg: ExperimentConfig, packed: bytes, storage: str | None) -> bytes:
     """On a node: the shipped run folder trained to the end (resumed from its checkpoint, or
     from one a lost attempt left in ``storage``), sent back whole."""
-    torch.set_num_threads(1)
     with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
         base = Path(storage) if storage else Path(tmp)
         work = base / f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
