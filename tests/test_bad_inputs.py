@@ -121,6 +121,13 @@ CASES = [
     ("evaluate", ["workers=0"], r"workers=0 is invalid"),
     ("evaluate", ["grid.mixes=[1.5]"], r"grid\.mixes=\[1\.5\] is invalid"),
     ("evaluate", ["grid.radii=[0]"], r"grid\.radii=\[0\.0\] is invalid"),
+    ("evaluate", ["grid.simulated=false"], r"grid\.replays=\[\] is invalid: a grid without"),
+    ("evaluate", ["grid.replays=[{tmp}/none.parquet]"], r"no such trajectory table"),
+    ("evaluate", ["grid.replays=[{tmp}/good.csv]"], r"replay needs a lane column"),
+    # --- a Ray cluster (issue 35): refused before Ray is asked anything
+    ("train", ["cluster.address=local", "cluster.storage=s3://bucket/x"], r"mount the bucket"),
+    ("train", ["cluster.address=local", "cluster.storage=/proc/bgap"], r"cannot be written here"),
+    ("sweep", ["cluster.address=10.0.0.1:6379"], r"cannot share a SQLite file"),
     ("run", ["mix=2"], r"mix=2\.0 is invalid"),
     ("run", ["seed=-1"], r"seed=-1 is invalid"),
     # --- calibrate and sweep

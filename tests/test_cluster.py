@@ -229,3 +229,37 @@ def test_ctrl_c_on_the_driver_cancels_the_tasks_and_says_what_was_kept(tmp_path)
     resumed = subprocess.run([*cmd, "resume=true"], capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert (tmp_path / "run" / "model.zip").exists()
+
+
+def test_a_cluster_that_wants_a_token_refuses_a_driver_without_one_in_one_line(tmp_path):
+    """A head started with Ray's token authentication (RAY_AUTH_MODE=token): a driver with
+    no token is one line naming the token and exit status 2, and writes nothing; with the
+    cluster's token the same command runs."""
+    import os
+    import secrets
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    token = secrets.token_hex(16)
+    home = {**os.environ, "HOME": str(tmp_path), "RAY_AUTH_MODE": "token"}  # no token file
+    home.pop("RAY_AUTH_TOKEN", None)
+    ray = [sys.executable, "-m", "ray.scripts.scripts"]
+    start = [*ray, "start", "--head", f"--port={port}", "--num-cpus=1",
+             "--include-dashboard=false"]  # fmt: skip
+    subprocess.run(start, env={**home, "RAY_AUTH_TOKEN": token}, check=True, capture_output=True,
+                   timeout=120)  # fmt: skip
+    try:
+        cmd = [sys.executable, "-m", "bgap.evaluate", "baselines=[idle]", "backend=vector",
+               "profile.eval_episodes=2", f"cluster.address=127.0.0.1:{port}"]  # fmt: skip
+        done = subprocess.run([*cmd, f"out={tmp_path}/no"], env=home, capture_output=True,
+                              text=True, timeout=300)  # fmt: skip
+        assert done.returncode == 2, done.stderr[-2000:]
+        assert done.stderr.count("\n") == 1 and "none is set" in done.stderr
+        assert not (tmp_path / "no").exists()
+        done = subprocess.run([*cmd, f"out={tmp_path}/yes"], env={**home, "RAY_AUTH_TOKEN": token},
+                              capture_output=True, text=True, timeout=300)  # fmt: skip
+        assert done.returncode == 0, done.stderr[-2000:]
+    finally:
+        subprocess.run([*ray, "stop", "--force"], env=home, capture_output=True, timeout=120)

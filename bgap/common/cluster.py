@@ -20,6 +20,7 @@ import socket
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Optional
 
 from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
@@ -40,11 +41,18 @@ class ClusterConfig:
     retries: int = 3
     """Times a task is retried when its node dies (Ray's ``max_retries``)."""
     storage: Optional[str] = None
-    """A path every node sees (or an fsspec URL): where tasks keep checkpoints, so a retried
-    task resumes where the lost one stopped. Default: the run folders themselves (one
-    machine, or a shared file system)."""
+    """A path every node sees (a shared file system, or a bucket mounted on every node):
+    where tasks keep checkpoints, so a retried task resumes where the lost one stopped.
+    Default: none (a retried task starts its training again)."""
 
     def __post_init__(self) -> None:
+        check(
+            not self.storage or "://" not in self.storage,
+            "cluster.storage",
+            self.storage,
+            "takes a path every node sees; mount the bucket on every node (s3fs, gcsfuse, "
+            "blobfuse2) and give its mount point",
+        )
         check(self.cpus > 0, "cluster.cpus", self.cpus, "must be > 0")
         check(self.gpus >= 0, "cluster.gpus", self.gpus, "must be >= 0")
         check(self.retries >= 0, "cluster.retries", self.retries, "must be >= 0")
@@ -52,6 +60,23 @@ class ClusterConfig:
     @property
     def enabled(self) -> bool:
         return bool(self.address)
+
+
+def writable(storage: str, where: str = "here") -> Path:
+    """``storage`` made and written to (a probe file, removed), or one line saying it cannot
+    be: checked on the driver before any task starts and by each task on its node."""
+    path = Path(storage)
+    probe = path / f".bgap-probe-{os.getpid()}"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as err:
+        raise ConfigError(
+            f"cluster.storage={storage!r} cannot be written {where} ({err.strerror or err}); "
+            "give a path every node can write"
+        ) from None
+    return path
 
 
 def _ray() -> Any:
@@ -82,13 +107,14 @@ def connected(cfg: ClusterConfig) -> Iterator[Any]:
             _reachable(cfg.address)
             kwargs["address"] = cfg.address
         try:
-            context = ray.init(**kwargs)
-        except (ConnectionError, RuntimeError, ValueError) as err:
+            with _quiet_stderr():
+                context = ray.init(**kwargs)
+        except (ConnectionError, RuntimeError, ValueError, _auth_error(ray)) as err:
             first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise ConfigError(
                 f"cluster.address={cfg.address!r}: cannot connect to a Ray cluster ({first}); "
-                "start one with `ray start --head`, check the address and the token "
-                "(RAY_AUTH_TOKEN), or use cluster.address=local"
+                f"start one with `ray start --head`, check the address, {_token_hint()}, or "
+                "use cluster.address=local"
             ) from None
         url = getattr(context, "dashboard_url", None)
         if url:
@@ -98,6 +124,42 @@ def connected(cfg: ClusterConfig) -> Iterator[Any]:
     finally:
         if started:
             ray.shutdown()
+
+
+def _auth_error(ray: Any) -> type[Exception]:
+    """Ray's error for a driver without the cluster's token (RAY_AUTH_MODE=token here)."""
+    return getattr(ray.exceptions, "AuthenticationError", ConnectionError)
+
+
+@contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """File descriptor 2 into a temporary file while Ray connects: its core (C++) logs each
+    failed attempt there (a refused token: a line a second for 20 s) beside the one line
+    bgap gives for the failure."""
+    import sys
+    import tempfile
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+
+
+def _token_hint() -> str:
+    """What to check about Ray's token authentication (on by default from Ray 2.59 for
+    local clusters): every node and every driver needs the cluster's token."""
+    token_file = Path(os.environ.get("RAY_AUTH_TOKEN_PATH", Path.home() / ".ray" / "auth_token"))
+    if os.environ.get("RAY_AUTH_TOKEN") or token_file.exists():
+        return "check that this machine's token (RAY_AUTH_TOKEN) is the cluster's"
+    return (
+        "and set the cluster's token here (RAY_AUTH_TOKEN=..., or RAY_AUTH_TOKEN_PATH; `ray "
+        "get-auth-token` on the head prints it): none is set"
+    )
 
 
 def _reachable(address: str) -> None:

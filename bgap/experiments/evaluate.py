@@ -30,7 +30,7 @@ from tqdm import tqdm
 from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, rollout
 from bgap.analysis.episodes import EPISODES, MODELS
 from bgap.analysis.stats import per_100km, t_interval, wilson_interval
-from bgap.common.cluster import run_tasks
+from bgap.common.cluster import connected, run_tasks
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -202,6 +202,18 @@ def evaluate(
         for name, spec in policies.items()
         for i in range(0, episodes, chunk)
     ]
+    with connected(cfg.cluster):  # an unreachable cluster fails here, before any output
+        rows = _play(cfg, jobs, chunk, workers, progress, policies)
+    if any(c.table for c in cells):  # simulated cells beside replays: "" (never a NaN key)
+        rows = [{**row, "replay": row.get("replay", "")} for row in rows]
+    return pd.DataFrame(rows)
+
+
+def _play(
+    cfg: ExperimentConfig, jobs: list[tuple], chunk: int, workers: int, progress: bool,
+    policies: dict[str, Any],
+) -> list[dict]:  # fmt: skip
+    """Every job of :func:`evaluate` here, in worker processes or as Ray tasks."""
     rows: list[dict] = []
     bar = tqdm(total=len(jobs) * chunk, unit="ep", desc="evaluate", disable=not progress)
     if cfg.cluster.enabled:  # one Ray task per job; a model travels as its file's bytes
@@ -221,9 +233,7 @@ def evaluate(
             rows.extend(_evaluate_chunk(*job))
             bar.update(chunk)
     bar.close()
-    if any(c.table for c in cells):  # simulated cells beside replays: "" (never a NaN key)
-        rows = [{**row, "replay": row.get("replay", "")} for row in rows]
-    return pd.DataFrame(rows)
+    return rows
 
 
 STORED = {
@@ -445,6 +455,11 @@ def model_records(specs: dict[str, Any]) -> pd.DataFrame:
 def main(dcfg: DictConfig) -> None:
 
     cfg: ExperimentConfig = load(dcfg)
+    with connected(cfg.cluster):  # a cluster out of reach: one line before anything is written
+        _main(cfg, dcfg)
+
+
+def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
     out = Path(cfg.out or Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}")
     save_run_metadata(out, dcfg)
     specs = policy_specs(cfg)

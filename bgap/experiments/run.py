@@ -20,6 +20,7 @@ from omegaconf import DictConfig
 
 from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
+from bgap.common.cluster import connected
 from bgap.common.config import app, load
 from bgap.common.runs import VOLATILE, as_before, digest, exclusive, model_file, save_run_metadata
 from bgap.common.vocab import POLICIES
@@ -182,7 +183,9 @@ VERDICTS = {
     "finished trainings are kept and reused by a rerun of the same command",
 )
 def main(dcfg: DictConfig) -> None:
-    run(load(dcfg), dcfg)
+    cfg = load(dcfg)
+    with connected(cfg.cluster):  # a cluster out of reach: one line before anything is written
+        run(cfg, dcfg)
 
 
 if __name__ == "__main__":

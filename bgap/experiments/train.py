@@ -18,6 +18,7 @@ environments restart on fresh seeds.
 from __future__ import annotations
 
 import pickle
+import socket
 import tempfile
 import warnings
 from collections.abc import Sequence
@@ -41,7 +42,7 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import with_features
-from bgap.common.cluster import ClusterConfig, run_tasks
+from bgap.common.cluster import ClusterConfig, connected, run_tasks, writable
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
 from bgap.common.runs import exclusive, held_by_parent, pack, unpack, write_atomic
@@ -229,7 +230,9 @@ def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Pa
     ``cluster.storage`` when set (a retried task resumes from the lost one's checkpoints),
     and sends the finished folder back here."""
     cluster = cfgs[0].cluster
-    with ExitStack() as locks:
+    if cluster.storage:
+        writable(cluster.storage)
+    with ExitStack() as locks, connected(cluster):  # one line for a cluster out of reach
         for d in sorted(set(dirs)):
             locks.enter_context(exclusive(d))
         todo = []
@@ -261,7 +264,7 @@ def _train_task(cfg: ExperimentConfig, packed: bytes, storage: str | None) -> by
     """On a node: the shipped run folder trained to the end (resumed from its checkpoint, or
     from one a lost attempt left in ``storage``), sent back whole."""
     with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
-        base = Path(storage) if storage else Path(tmp)
+        base = writable(storage, f"on node {socket.gethostname()}") if storage else Path(tmp)
         work = base / f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
         if not (work / "checkpoints" / "state.pkl").exists():
             unpack(packed, work)
