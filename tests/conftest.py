@@ -12,6 +12,8 @@ if "PYTEST_XDIST_WORKER" in os.environ:
     # before numba or torch is imported; results do not depend on the number of threads.
     for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
+for _var in ("BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE"):  # a user's cluster stays out
+    os.environ.pop(_var, None)
 
 import glob  # noqa: E402
 import shutil  # noqa: E402
@@ -23,9 +25,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from bgap.common.config import validate
-from bgap.datasets.config import SimulateConfig
-from tests.configs import compose
+from bgap.common.config import validate  # noqa: E402
+from bgap.datasets.config import SimulateConfig  # noqa: E402
+from tests.configs import compose  # noqa: E402
 
 
 def pytest_sessionstart(session) -> None:

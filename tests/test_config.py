@@ -60,3 +60,21 @@ def test_wrong_types_fail_at_compose():
 def test_unknown_group_option_lists_the_choices():
     with pytest.raises(MissingConfigException, match="dense"):
         compose("simulate", ["env=medium"])
+
+
+def test_the_pipeline_reaches_a_cluster_through_the_environment(monkeypatch):
+    """BGAP_CLUSTER_ADDRESS / BGAP_CLUSTER_STORAGE fill cluster.address and cluster.storage
+    when a command leaves them empty (dvc repro's stages, whose commands must not change);
+    a value on the command line wins; neither changes a run folder's name."""
+    from bgap.common.config import validate
+    from bgap.experiments.run import results_dir
+    from tests.configs import compose
+
+    here = validate(compose("run", ["profile=tiny"]))
+    monkeypatch.setenv("BGAP_CLUSTER_ADDRESS", "auto")
+    monkeypatch.setenv("BGAP_CLUSTER_STORAGE", "/shared/bgap")
+    there = validate(compose("run", ["profile=tiny"]))
+    assert (there.cluster.address, there.cluster.storage) == ("auto", "/shared/bgap")
+    given = validate(compose("run", ["profile=tiny", "cluster.address=local"]))
+    assert given.cluster.address == "local"
+    assert results_dir(here) == results_dir(there)

@@ -25,6 +25,11 @@ from typing import Any, Optional
 
 from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
 
+ENV_ADDRESS, ENV_STORAGE = "BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE"
+"""Environment variables that give ``cluster.address`` and ``cluster.storage`` when a command
+leaves them empty: how ``dvc repro`` sends the pipeline's stages to a cluster
+(``BGAP_CLUSTER_ADDRESS=auto dvc repro``) without touching their commands."""
+
 
 @dataclass
 class ClusterConfig:
@@ -46,6 +51,10 @@ class ClusterConfig:
     Default: none (a retried task starts its training again)."""
 
     def __post_init__(self) -> None:
+        # The pipeline's stages take their cluster from the environment: a setting in their
+        # commands would change them, and DVC would run them again
+        self.address = self.address or os.environ.get(ENV_ADDRESS, "")
+        self.storage = self.storage or os.environ.get(ENV_STORAGE) or None
         check(
             not self.storage or "://" not in self.storage,
             "cluster.storage",
