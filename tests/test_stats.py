@@ -132,3 +132,19 @@ def test_collisions_per_100km_of_a_hand_built_set_of_episodes():
     # a policy that never crashed still gets an upper bound (3.689 events over 100 km)
     mean, lo, hi = seed_per_100km_interval([np.zeros(3)] * 2, [metres] * 2, rng, draws=200)
     assert (mean, lo) == (0.0, 0.0) and hi == pytest.approx(3.689, abs=1e-3)
+
+
+def test_a_sample_without_spread_still_gets_an_interval_of_positive_width():
+    """Lane changes that are 0 in all 100 episodes (an idle ego) read [0, 3.69 / 100], the
+    exact Poisson bound of 0 events in 100 episodes; a constant speed gets its value +- its
+    stored (single) precision; a sample with spread keeps Student's t interval."""
+    from bgap.analysis.stats import spread_interval, t_interval
+
+    lo, hi = spread_interval(np.zeros(100), counts=True)
+    assert lo == 0 and hi == pytest.approx(-np.log(0.025) / 100, rel=1e-9)  # 3.689 / 100
+    lo, hi = spread_interval(np.full(100, 2.0), counts=True)  # 200 events in 100 episodes
+    assert lo < 2.0 < hi and hi - lo == pytest.approx(2 * 1.96 * np.sqrt(200) / 100, rel=0.05)
+    lo, hi = spread_interval(np.full(50, 25.0))
+    assert lo < 25.0 < hi and hi - lo == pytest.approx(2 * np.spacing(np.float32(25.0)))
+    x = np.array([1.0, 2.0, 4.0])
+    assert spread_interval(x) == t_interval(x)

@@ -226,7 +226,10 @@ def cell_stats(df: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
         for m in ("avg_speed", "lane_changes"):
             row[m] = float(g[m].mean())
             values = g[m].to_numpy() if len(g) > 1 else episodes[m].to_numpy(dtype=float)
-            lo, hi = mean_interval(values)
+            if m == "lane_changes" and np.ptp(values) == 0:  # no spread: counts' own interval
+                lo, hi = mean_interval(episodes[m].to_numpy(dtype=float), counts=True)
+            else:
+                lo, hi = mean_interval(values)
             row[f"{m}_lo"], row[f"{m}_hi"] = max(lo, 0.0), hi
         if "ending" in episodes:
             share = episodes.ending.value_counts(normalize=True)

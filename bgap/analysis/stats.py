@@ -98,13 +98,31 @@ def t_interval(x: np.ndarray) -> tuple[float, float]:
     return x.mean() - half, x.mean() + half
 
 
-def mean_interval(x: np.ndarray) -> tuple[float, float]:
-    """:func:`t_interval`, except that a single value is returned as its own (degenerate)
-    interval, for plotting one training seed or one episode."""
+def spread_interval(x: np.ndarray, counts: bool = False) -> tuple[float, float]:
+    """95% interval of the mean of ``x`` that never has zero width: :func:`t_interval`, except
+    for a sample without spread (every value equal, where the t interval collapses): counts
+    (lane changes per episode) get the exact Poisson interval of their total
+    (:func:`poisson_interval`: all zeros over n episodes read [0, 3.69 / n]), other measures
+    their value +- the precision they are stored in (single precision). NaN below two
+    values."""
+    x = np.asarray(x, dtype=float)
+    if len(x) < 2:
+        return math.nan, math.nan
+    if np.ptp(x) > 0:
+        return t_interval(x)
+    if counts:
+        return poisson_interval(int(round(x.sum())), len(x))
+    half = float(np.spacing(np.float32(abs(x[0]))))
+    return x[0] - half, x[0] + half
+
+
+def mean_interval(x: np.ndarray, counts: bool = False) -> tuple[float, float]:
+    """:func:`spread_interval`, except that a single value is returned as its own
+    (degenerate) interval, for plotting one training seed or one episode."""
     x = np.asarray(x, dtype=float)
     if len(x) < 2:
         return float(np.mean(x)), float(np.mean(x))
-    return t_interval(x)
+    return spread_interval(x, counts)
 
 
 def seed_bootstrap(

@@ -29,7 +29,7 @@ from tqdm import tqdm
 
 from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, rollout
 from bgap.analysis.episodes import EPISODES, MODELS
-from bgap.analysis.stats import per_100km, t_interval, wilson_interval
+from bgap.analysis.stats import per_100km, spread_interval, wilson_interval
 from bgap.common.cluster import connected, run_tasks
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
@@ -261,8 +261,8 @@ def summarize(episodes: pd.DataFrame) -> pd.DataFrame:
     for key, g in episodes.groupby(keys, sort=False):
         crashes, n = int(g.crashed.sum()), len(g)
         lo, hi = wilson_interval(crashes, n)
-        s_lo, s_hi = t_interval(g.avg_speed.to_numpy())
-        l_lo, l_hi = t_interval(g.lane_changes.to_numpy(dtype=float))
+        s_lo, s_hi = spread_interval(g.avg_speed.to_numpy())
+        l_lo, l_hi = spread_interval(g.lane_changes.to_numpy(dtype=float), counts=True)
         rows.append(
             dict(zip(keys, key, strict=True))
             | {
