@@ -263,3 +263,28 @@ def test_a_cluster_that_wants_a_token_refuses_a_driver_without_one_in_one_line(t
         assert done.returncode == 0, done.stderr[-2000:]
     finally:
         subprocess.run([*ray, "stop", "--force"], env=home, capture_output=True, timeout=120)
+
+
+def test_a_batched_stage_through_a_two_node_cluster_learns_what_it_learns_here(tmp_path, nodes):
+    """A tiny study stage (2 seeds x 2 policies, the batched learner) here and as one Ray
+    task on a 2-node cluster: every member's parameters equal, in the same folders."""
+    import torch as th
+
+    from bgap.agents.policies import load_model
+    from bgap.experiments.batched import train_batched
+    from bgap.experiments.training import member_configs
+
+    nodes.add_node(num_cpus=1)
+    nodes.add_node(num_cpus=1)
+    dirs = {}
+    for extra in ([], [f"cluster.address={nodes.address}"]):
+        where = "ray" if extra else "here"
+        overrides = ["learner=batched", "profile=tiny", "env=sparse", "seeds=[0,1]",
+                     "policies=[behavior_rich,default]", f"run_dir={tmp_path}/{where}",
+                     *extra]  # fmt: skip
+        dirs[where] = train_batched(member_configs(validate(compose("train", overrides))), False)
+    assert [d.name for d in dirs["here"]] == [d.name for d in dirs["ray"]]
+    for here, there in zip(dirs["here"], dirs["ray"], strict=True):
+        assert (there / "config.yaml").exists() and (there / "model.zip").exists()
+        a, b = (load_model(d).policy.state_dict() for d in (here, there))
+        assert all(th.equal(a[k], b[k]) for k in a)

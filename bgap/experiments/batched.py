@@ -28,14 +28,16 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import MODEL_ATTRIBUTE, with_features
+from bgap.common.cluster import connected, run_tasks, writable
 from bgap.common.errors import ConfigError, Interrupted, check
-from bgap.common.runs import exclusive, write_atomic
+from bgap.common.runs import digest, exclusive, pack, unpack, write_atomic
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
     member_dirs,
     open_run_dir,
     read_checkpoint,
+    run_name,
     training_config,
 )
 from bgap.sim.simulators import make_vector_env
@@ -112,11 +114,70 @@ def train_batched(
     dirs = member_dirs(cfgs)
     if len(set(dirs)) < len(dirs):
         raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
+    cluster = first.cluster
+    if cluster.enabled and cluster.storage:
+        writable(cluster.storage)
     with ExitStack() as locks:  # each member's folder, while this process writes it
         for d in sorted(set(dirs)):
             locks.enter_context(exclusive(d))
-        _open_and_train(cfgs, dirs, progress, sb3_streams)
+        if cluster.enabled:
+            with connected(cluster):  # one line for a cluster out of reach, before any file
+                _on_cluster(cfgs, dirs, progress)
+        else:
+            _open_and_train(cfgs, dirs, progress, sb3_streams)
     return dirs  # every member's, the finished ones' too
+
+
+def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool) -> None:
+    """The unfinished members as one Ray task (:mod:`bgap.common.cluster`, ``cluster.cpus``
+    and ``cluster.gpus``: a batched learner is one process): their run folders travel to the
+    node, train there (in ``cluster.storage`` when set, so a retried task resumes from the
+    lost one's checkpoints) and come back whole."""
+    opened = [open_run_dir(c, d) for c, d in zip(cfgs, dirs, strict=True)]
+    todo = [i for i, (_, status) in enumerate(opened) if status != "finished"]
+    if not todo:
+        return
+    cluster = cfgs[0].cluster
+    kept = (
+        f"the members' last checkpoints are in {cluster.storage} (cluster.storage): rerun the "
+        "same command with resume=true"
+        if cluster.storage
+        else "the members kept nothing (cluster.storage keeps their checkpoints); rerun the "
+        "same command with resume=true"
+    )
+    members = [cfgs[i] for i in todo]
+    if progress:
+        print(f"{len(members)} members of one batched learner as a Ray task on "
+              f"{cluster.address}", flush=True)  # fmt: skip
+    (packed,) = run_tasks(
+        cluster, _members_task, [(members, [pack(dirs[i]) for i in todo], cluster.storage)],
+        kept=kept,
+    )  # fmt: skip
+    for i, data in zip(todo, packed, strict=True):
+        unpack(data, dirs[i])
+
+
+def _members_task(
+    cfgs: list[ExperimentConfig], packed: list[bytes], storage: str | None
+) -> list[bytes]:
+    """On a node: the shipped members trained to the end in one batched learner (each
+    resumed from its checkpoint, or from one a lost attempt left in ``storage``)."""
+    import socket
+    import tempfile
+
+    from bgap.common.cluster import ClusterConfig
+
+    with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
+        base = writable(storage, f"on node {socket.gethostname()}") if storage else Path(tmp)
+        group = base / f"batched-{digest([run_name(c) for c in cfgs])}"
+        here = [replace(c, run_dir=str(group), root=str(base), cluster=ClusterConfig(),
+                        resume=True) for c in cfgs]  # fmt: skip
+        work = member_dirs(here)
+        for data, d in zip(packed, work, strict=True):
+            if not (d / "checkpoints" / "state.pkl").exists():
+                unpack(data, d)
+        train_batched(here, progress=False)
+        return [pack(d) for d in work]
 
 
 def _open_and_train(
