@@ -435,3 +435,43 @@ def test_the_command_scores_with_the_tuned_preset_and_paper_is_the_papers_readin
     paper = load_preset(CMetricConfig, preset_path("cmetric", "paper"))
     default = load_preset(CMetricConfig, preset_path("cmetric", "default"))
     assert paper.name == "paper" and replace(paper, name="default") == default
+
+
+def test_the_class_boundary_maximises_youdens_j_on_a_hand_built_case():
+    """Aggressive scores 0.6, 0.7, 0.9; conservative 0.1, 0.2, 0.65. Cutting at 0.4 or at
+    0.675 both give TPR - FPR = 2/3 (the maximum): the first is kept."""
+    from bgap.cmetric.boundary import balanced_accuracy, youden_threshold
+
+    scores = np.array([0.6, 0.7, 0.9, 0.1, 0.2, 0.65])
+    positive = np.array([True, True, True, False, False, False])
+    assert youden_threshold(scores, positive) == pytest.approx(0.4)
+    assert balanced_accuracy(scores, positive, 0.4) == pytest.approx((1 + 2 / 3) / 2)
+
+
+def test_a_table_without_labels_reads_near_its_true_share_through_the_boundary(
+    sparse_mixed_recording, tmp_path, monkeypatch
+):
+    """The boundary fixed on the even episodes of a labelled recording (half aggressive,
+    tuned CMetric) separates the odd ones better than chance, and the same recording with
+    its labels removed, replayed in an evaluation grid, gets a mix near its labelled share
+    (the boundary's, not the table's median: a median would read 0.5 whatever the traffic)."""
+    from bgap.cmetric import boundary as classes
+    from bgap.common.config import validate
+    from bgap.experiments.evaluate import grid_cells
+    from tests.configs import compose
+
+    table = sparse_mixed_recording
+    labelled = tmp_path / "labelled.parquet"
+    table.to_parquet(labelled)
+    fitted, report = classes.fit([labelled], "tuned")
+    assert fitted.balanced_accuracy > 0.7 and report["tuning_balanced_accuracy"] > 0.7
+    tracks = table.drop_duplicates(["episode", "vehicle_id"])
+    truth = (tracks.label == "aggressive").sum() / tracks.label.isin(
+        ["aggressive", "conservative"]).sum()  # fmt: skip
+    unlabelled = tmp_path / "unlabelled.parquet"
+    table.drop(columns=["label"]).to_parquet(unlabelled)
+    monkeypatch.setattr(classes, "packaged", lambda cmetric="tuned": fitted)
+    cfg = validate(compose("evaluate", ["env=sparse", "grid=replay", "traffic.min_duration=5",
+                                        f"grid.replays=[sparse:{unlabelled}]"]))  # fmt: skip
+    (cell, _) = grid_cells(cfg)
+    assert abs(cell.mix - truth) < 0.1 and cell.mix == classes.share(unlabelled, fitted)

@@ -11,7 +11,7 @@ import pytest
 
 from tests.pipeline_repo import make_repo, run
 
-STAGES = {"cmetric_data", "cmetric_sumo", "cmetric_search", "parity"}
+STAGES = {"cmetric_data", "cmetric_sumo", "cmetric_search", "cmetric_boundary", "parity"}
 
 
 def _tiny(params: dict) -> None:
@@ -64,3 +64,25 @@ def test_parity_writes_one_row_per_backend_and_mix(pipeline):
     parity = pd.read_csv(pipeline / "results/parity/parity.csv")
     assert len(parity) > 0 and (pipeline / "results/parity/parity.png").stat().st_size > 0
     assert "up to date" in run(["dvc", "repro"], pipeline)
+
+
+def test_the_class_boundary_is_fixed_on_the_tuned_scores_of_bgaps_tables(pipeline):
+    """cmetric_boundary reads every cmetric_data table with the tuned preset the search
+    wrote: its preset loads, names both tables, and its boundary is the Youden threshold of
+    their even episodes' scores, recomputed here."""
+    import json
+
+    from bgap.cmetric.boundary import ClassBoundary, labelled_scores, youden_threshold
+    from bgap.cmetric.params import CMetricConfig
+    from bgap.common.presets import load_preset
+
+    fixed = load_preset(ClassBoundary, pipeline / "bgap/conf/cmetric/boundary/tuned.yaml")
+    assert len(fixed.tables) == 2 and fixed.cmetric == "tuned"
+    report = json.loads((pipeline / "results/cmetric/boundary/boundary.json").read_text())
+    assert report["boundary"] == fixed.boundary
+    tuned = load_preset(CMetricConfig, pipeline / "bgap/conf/cmetric/tuned.yaml")
+    tables = sorted((pipeline / "outputs/pipeline/cmetric_data").rglob("trajectories.parquet"))
+    scored = labelled_scores(tables, tuned)
+    even = scored[scored.episode.astype(int) % 2 == 0]
+    assert fixed.boundary == youden_threshold(even.aggressiveness.to_numpy(),
+                                              even.positive.to_numpy())  # fmt: skip

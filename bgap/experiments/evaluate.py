@@ -30,6 +30,7 @@ from tqdm import tqdm
 from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, rollout
 from bgap.analysis.episodes import EPISODES, MODELS
 from bgap.analysis.stats import per_100km, spread_interval, wilson_interval
+from bgap.cmetric import boundary as classes
 from bgap.common.cluster import connected, run_tasks
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
@@ -84,15 +85,12 @@ def grid_cells(cfg: ExperimentConfig) -> list[Cell]:
 
 
 def replay_mix(table: str, simulation_frequency: float, min_duration: float) -> float:
-    """A replayed table's aggressive share (:meth:`bgap.traffic.replay.Replay.aggressive_share`)
-    from its labels."""
+    """A replayed table's aggressive share, so that its cells read beside the simulated
+    mixes: from its labels (:meth:`bgap.traffic.replay.Replay.aggressive_share`), or without
+    them, the share of its vehicles whose CMetric aggressiveness lies above the class
+    boundary the pipeline fixed on bgap's labelled tables (:mod:`bgap.cmetric.boundary`)."""
     share = load_replay(table, simulation_frequency, min_duration).aggressive_share()
-    if share is None:
-        raise ConfigError(
-            f"grid.replays: {table} has no aggressive/conservative labels, so its cells have no "
-            "mix; label its vehicles (a label column) or replay it with traffic.table= instead"
-        )
-    return share
+    return classes.share(table, classes.packaged()) if share is None else share
 
 
 def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:

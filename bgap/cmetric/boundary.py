@@ -1,0 +1,207 @@
+"""A class boundary on CMetric's aggressiveness, fixed once on bgap's own labelled tables.
+
+    python -m bgap.cmetric.boundary outputs/pipeline/cmetric_data --cmetric tuned \
+        --out results/cmetric/boundary --preset bgap/conf/cmetric/boundary/tuned.yaml
+
+The boundary is the aggressiveness above which a vehicle reads aggressive: the threshold
+that maximises Youden's J (true minus false positive rate: balanced accuracy, whatever the
+share of aggressive drivers) on the tables' even episodes, pooled, the part CMetric's search
+tunes on; its balanced accuracy is reported on the odd episodes too. A table without labels
+is then read with it (a replayed table's aggressive share, issue 37), never with its own
+median, which would make every table half aggressive. Vehicles without evidence (no score)
+are left out of both. Writes ``boundary.json``, ``scores.png`` (each class's scores and the
+boundary), ``command.txt`` and the preset (:class:`ClassBoundary`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from omegaconf import OmegaConf
+
+from bgap.cmetric.io import load_trajectories
+from bgap.cmetric.params import CMetricConfig
+from bgap.cmetric.score import score_trajectories
+from bgap.common.cli import OneLineParser, run
+from bgap.common.errors import ConfigError
+from bgap.common.plotting import pyplot
+from bgap.common.presets import load_preset, preset_path
+from bgap.common.runs import write_atomic
+from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE
+
+BOUNDARY_DIR = "cmetric/boundary"
+"""Where the packaged boundaries live: ``bgap/conf/cmetric/boundary/<cmetric preset>.yaml``."""
+
+
+@dataclass
+class ClassBoundary:
+    """The aggressiveness above which a vehicle scored at the CMetric preset ``cmetric``
+    reads aggressive, and how well it separates bgap's labelled classes."""
+
+    name: str = "tuned"
+    cmetric: str = "tuned"
+    """The CMetric preset (``bgap/conf/cmetric/<name>.yaml``) the scores come from."""
+    boundary: float = 0.0
+    balanced_accuracy: float = float("nan")
+    """On the odd (validation) episodes; the tuning episodes' is in ``boundary.json``."""
+    tables: list[str] = field(default_factory=list)
+
+
+def youden_threshold(scores: np.ndarray, positive: np.ndarray) -> float:
+    """The threshold t maximising TPR - FPR of "score > t" (the first of tied maxima), set
+    midway between the two distinct scores it falls between."""
+    values = np.unique(scores)
+    if len(values) < 2:
+        raise ConfigError("a class boundary needs scores that differ between vehicles")
+    cuts = (values[:-1] + values[1:]) / 2
+    pos, neg = scores[positive], scores[~positive]
+    tpr = (pos[:, None] > cuts).mean(axis=0)
+    fpr = (neg[:, None] > cuts).mean(axis=0)
+    return float(cuts[int(np.argmax(tpr - fpr))])
+
+
+def balanced_accuracy(scores: np.ndarray, positive: np.ndarray, boundary: float) -> float:
+    said = scores > boundary
+    return float((said[positive].mean() + (~said[~positive]).mean()) / 2)
+
+
+def labelled_scores(tables: list[Path], cfg: CMetricConfig) -> pd.DataFrame:
+    """Every labelled (aggressive or conservative) vehicle with a score: table, episode,
+    aggressiveness, whether it is aggressive."""
+    parts = []
+    for path in tables:
+        vehicles = score_trajectories(path, cfg).vehicles
+        if "label" not in vehicles:
+            raise ConfigError(f"{path}: no label column; a boundary is fixed on labelled tables")
+        kept = vehicles[vehicles.label.isin([AGGRESSIVE, CONSERVATIVE])]
+        kept = kept.dropna(subset=["aggressiveness"])
+        parts.append(kept.assign(table=str(path), positive=kept.label == AGGRESSIVE))
+    return pd.concat(parts, ignore_index=True)
+
+
+def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict]:
+    """The boundary of the CMetric preset ``cmetric`` on ``tables`` (even episodes), with the
+    balanced accuracy of both parts and each part's size."""
+    cfg = load_preset(CMetricConfig, preset_path("cmetric", cmetric))
+    scored = labelled_scores(tables, cfg)
+    even = scored.episode.astype(int) % 2 == 0
+    tune, check = scored[even], scored[~even]
+    for part, rows in (("even", tune), ("odd", check)):
+        if rows.positive.all() or not rows.positive.any():
+            raise ConfigError(f"the {part} episodes need both aggressive and conservative cars")
+    x, y = tune.aggressiveness.to_numpy(), tune.positive.to_numpy()
+    boundary = youden_threshold(x, y)
+    validation = balanced_accuracy(check.aggressiveness.to_numpy(), check.positive.to_numpy(),
+                                   boundary)  # fmt: skip
+    result = ClassBoundary(name=cmetric, cmetric=cmetric, boundary=boundary,
+                           balanced_accuracy=validation,
+                           tables=[str(t) for t in tables])  # fmt: skip
+    report = asdict(result) | {
+        "tuning_balanced_accuracy": balanced_accuracy(x, y, boundary),
+        "tuning_vehicles": len(tune), "validation_vehicles": len(check),
+        "aggressive_share_tuning": float(y.mean()),
+    }  # fmt: skip
+    return result, report | {"_scored": scored}
+
+
+def share(table: str | Path | pd.DataFrame, boundary: ClassBoundary) -> float:
+    """The share of a table's scored vehicles (each track once; an ``is_ego`` vehicle left
+    out) whose aggressiveness lies above ``boundary``."""
+    cfg = load_preset(CMetricConfig, preset_path("cmetric", boundary.cmetric))
+    rows = load_trajectories(table, extra=("is_ego",))
+    vehicles = score_trajectories(rows, cfg).vehicles.dropna(subset=["aggressiveness"])
+    keys = ["episode", "vehicle_id"]
+    if "is_ego" in rows:  # a recording's ego (a bgap or SUMO table) is not its traffic
+        egos = rows[rows.is_ego.astype(bool)][keys].drop_duplicates()
+        vehicles = vehicles.merge(egos, on=keys, how="left", indicator=True)
+        vehicles = vehicles[vehicles.pop("_merge") == "left_only"]
+    if "label" in vehicles:
+        vehicles = vehicles[vehicles.label.astype(str) != "ego"]
+    if vehicles.empty:
+        raise ConfigError(f"{table}: CMetric scores none of its vehicles (no evidence)")
+    return float((vehicles.aggressiveness > boundary.boundary).mean())
+
+
+def packaged(cmetric: str = "tuned") -> ClassBoundary:
+    """The boundary the pipeline fixed for the CMetric preset ``cmetric``."""
+    path = preset_path(BOUNDARY_DIR, cmetric)
+    if not path.exists():
+        raise ConfigError(
+            f"no class boundary for cmetric={cmetric} ({path}); the pipeline's "
+            "cmetric_boundary stage fixes it (dvc repro cmetric_boundary)"
+        )
+    return load_preset(ClassBoundary, path)
+
+
+def _tables(sources: list[str]) -> list[Path]:
+    found = []
+    for source in map(Path, sources):
+        found += sorted(source.rglob("trajectories.parquet")) if source.is_dir() else [source]
+    if not found:
+        raise ConfigError(f"no trajectories.parquet in {sources}")
+    return found
+
+
+def _plot(scored: pd.DataFrame, boundary: float, path: Path) -> None:
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(5.5, 3.4))
+    bins = np.linspace(scored.aggressiveness.min(), scored.aggressiveness.max(), 40)
+    for label, colour in ((CONSERVATIVE, "tab:blue"), (AGGRESSIVE, "tab:red")):
+        ax.hist(scored[scored.label == label].aggressiveness, bins, alpha=0.5, color=colour,
+                label=label, density=True)  # fmt: skip
+    ax.axvline(boundary, color="k", ls="--", label=f"boundary {boundary:.3f}")
+    ax.set_xlabel("CMetric aggressiveness")
+    ax.set_ylabel("density of vehicles")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = OneLineParser(
+        prog="bgap.cmetric.boundary",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("tables", nargs="+", help="labelled tables, or folders holding "
+                        "trajectories.parquet files (the pipeline: its cmetric_data)")  # fmt: skip
+    parser.add_argument("--cmetric", default="tuned", help="the CMetric preset scored with")
+    parser.add_argument("--out", default="outputs/cmetric_boundary", help="report folder")
+    parser.add_argument("--preset", default=None, help="where the boundary preset goes "
+                        "(default: <out>/<cmetric>.yaml)")  # fmt: skip
+    args = parser.parse_args(argv)
+
+    def task() -> Path:
+        result, report = fit(_tables(args.tables), args.cmetric)
+        scored = report.pop("_scored")
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        write_atomic(out / "boundary.json", json.dumps(report, indent=1))
+        write_atomic(out / "command.txt", " ".join(["python -m bgap.cmetric.boundary",
+                                                     *sys.argv[1:]]) + "\n")  # fmt: skip
+        _plot(scored, result.boundary, out / "scores.png")
+        preset = Path(args.preset or out / f"{args.cmetric}.yaml")
+        note = (f"Class boundary of cmetric={args.cmetric}, fixed by python -m "
+                f"bgap.cmetric.boundary on {len(result.tables)} labelled tables (Youden's J on "
+                f"their even episodes); report: {out / 'boundary.json'}")  # fmt: skip
+        preset.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(preset, f"# {note}\n{OmegaConf.to_yaml(OmegaConf.structured(result))}")
+        tuned = report["tuning_balanced_accuracy"]
+        print(
+            f"boundary {result.boundary:.4f}: balanced accuracy {tuned:.3f} (even episodes), "
+            f"{result.balanced_accuracy:.3f} (odd); preset {preset}"
+        )
+        return preset
+
+    run("bgap.cmetric.boundary", task, "nothing was written; rerun the command")
+
+
+if __name__ == "__main__":
+    main()
