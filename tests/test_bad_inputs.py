@@ -59,6 +59,8 @@ def _tables(folder: Path) -> None:
     (folder / "latin1.csv").write_bytes("vehicle_id,frame,x,y\n1,0,0,\xe9\n".encode("latin-1"))
     (folder / "ragged.csv").write_text("vehicle_id,frame,x,y\n1,0,0,0\n1,1,1,0,7\n")
     (folder / "not_a_model.zip").write_text("not a zip archive")
+    (folder / "done").mkdir()
+    (folder / "done" / "README.md").write_text("an earlier run's results page\n")
     import zipfile
 
     with zipfile.ZipFile(folder / "no_data.zip", "w") as archive:
@@ -177,6 +179,7 @@ CASES = [
     ("cmetric", ["input={tmp}/good.csv", "cmetric.window=0"], r"cmetric\.window=0\.0"),
     # --- figures: evaluation folders that hold no episodes, or damaged ones
     ("figures", ["{tmp}/nothing"], r"no evaluation episodes in .*nothing: run bgap.evaluate"),
+    ("figures", ["{tmp}/nothing", "--out", "{tmp}/done"], r"done holds the results of an earlier"),
     ("figures", ["{tmp}/evaluation"], r"episodes.parquet cannot be read as Parquet"),
     # --- parity: the fast mode's rows would replace the parity stage's own
     (

@@ -32,9 +32,14 @@ whole claims table; the verdict follows from the corrected p-values.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from bgap.analysis.plots import make_figures
 from bgap.common.cli import OneLineParser, run
+
+WRITTEN = ("README.md", "cells.csv", "claims.csv", "own_traffic.csv", "table2.md",
+           "metrics.json", "figures")  # fmt: skip
+"""What :func:`bgap.analysis.plots.make_figures` writes into ``--out``."""
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -54,6 +59,12 @@ def main(argv: list[str] | None = None) -> None:
         help="where figures and tables go (the pipeline: results)",
     )
     args = parser.parse_args(argv)
+    earlier = [n for n in WRITTEN if (Path(args.out) / n).exists()]
+    if earlier:  # a rerun refuses: it never overwrites an earlier result (the pipeline's
+        # stage starts from an empty set: DVC removes a stage's outputs before it runs)
+        parser.exit(2, f"bgap.figures: {args.out} holds the results of an earlier run "
+                    f"({', '.join(earlier)}); give another --out, or remove them to make them "
+                    "again\n")  # fmt: skip
     paths = run(
         "bgap.figures",
         lambda: make_figures(args.evaluations, args.out, args.stock),
