@@ -7,9 +7,9 @@
                                     # learner with K = 1, 4, 10, 20 members, dense traffic
     python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
                                     # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
-    python -m bgap.bench cluster --seconds 60   # the same 4 trainings on a local Ray cluster
-                                    # of 1 node, then 2 nodes (one CPU each; the cluster extra;
-                                    # each task's start costs seconds: give trainings a minute)
+    python -m bgap.bench cluster    # the same 4 trainings (a minute each) on a local Ray
+                                    # cluster of 1 node, then 2 nodes (one CPU each; the
+                                    # cluster extra)
 
 Figures are reported beside a baseline measured in the same run, since machines are noisy.
 """
@@ -481,7 +481,10 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("what", choices=sorted(BENCHES))
     parser.add_argument(
-        "--seconds", type=positive(float), default=10.0, help="wall time per measurement"
+        "--seconds",
+        type=positive(float),
+        default=None,
+        help="wall time per measurement (default 10; cluster: about 60 of one core per training)",
     )
     parser.add_argument("--envs", type=positive(int), default=64, help="sim: batched environments")
     parser.add_argument(
@@ -498,6 +501,8 @@ def main(argv: list[str] | None = None) -> None:
         "--trainings", type=positive(int), default=4, help="cluster: trainings per cluster"
     )
     args = parser.parse_args(argv)
+    # a cluster task's start costs seconds: a minute of work per task keeps it a small part
+    args.seconds = args.seconds or (60.0 if args.what == "cluster" else 10.0)
     if args.what == "sim":
         bench_sim(args.seconds, num_envs=args.envs, threads=args.threads)
     elif args.what == "learn":
