@@ -177,6 +177,11 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
     assert "trades" in rows["bgap default DQN, recipe (main arm)"]
     assert "beaten" in rows["bgap behavior-rich DQN, authors' 2020 configuration"]
     assert speed_vs_safety(stats, tmp_path / "s.png") and (tmp_path / "s.png").stat().st_size
+    # a density without a cell another density has (n = 5: mix 0.6 repeats mix 0.5) leaves
+    # that panel empty instead of failing
+    other = stats.assign(density="sparse", mix=0.6, duplicate_of=0.5)
+    both = pd.concat([stats, stats.assign(density="sparse"), other], ignore_index=True)
+    assert speed_vs_safety(both, tmp_path / "t.png")
 
 
 def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):

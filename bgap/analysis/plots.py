@@ -172,6 +172,9 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     for r, density in enumerate(densities):
         for c, mix in enumerate(mixes):
             ax, here = axes[r, c], g[(g.density == density) & (g.mix == mix)]
+            if here.empty:  # a mix that repeats another's traffic at this density
+                ax.set_axis_off()
+                continue
             rule = here[here.family == "rule"]
             if len(rule):
                 x, y = float(rule.per_100km.iloc[0]), float(rule.avg_speed.iloc[0])
