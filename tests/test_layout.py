@@ -207,3 +207,21 @@ def test_the_replay_cells_in_params_name_every_replayed_table():
 
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     assert params["replay"]["cells"] == replay_cells(params)
+
+
+def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
+    """dvc.yaml lists a reader before the stage that writes what it reads (as replay_data
+    after evaluate_baselines): the rehearsal's order puts the writer first anyway."""
+    import yaml
+
+    from bgap.experiments.pipeline import _upstream_first
+
+    stages = {
+        "reader": {"cmd": "cat data/table > read", "deps": ["data"], "outs": ["read"]},
+        "writer": {"cmd": "mkdir -p data && echo 1 > data/table", "outs": ["data"]},
+    }
+    (tmp_path / "dvc.yaml").write_text(yaml.safe_dump({"stages": stages}, sort_keys=False))
+    subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
+    subprocess.run([sys.executable, "-m", "dvc", "init", "-q"], cwd=tmp_path, check=True)
+    rank = _upstream_first(tmp_path)
+    assert rank["writer"] < rank["reader"]

@@ -216,16 +216,27 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
                 raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
-        # one stage at a time, in dvc.yaml's order, on the committed presets: a stage that
-        # writes a preset (the recipe's unseeded sweep) runs last, so that no other stage
-        # reads a rehearsal's preset instead of the checkout's
-        order = list(yaml.safe_load((tree / "dvc.yaml").read_text())["stages"])
-        for stage in sorted(stages, key=lambda s: (s.split("@")[0] in LAST,
-                                                   order.index(s.split("@")[0]))):  # fmt: skip
+        # one stage at a time, each after the stages it reads (the pipeline's graph), on the
+        # committed presets: a stage that writes a preset (the recipe's unseeded sweep) runs
+        # last, so that no other stage reads a rehearsal's preset instead of the checkout's
+        rank = _upstream_first(tree)
+        for stage in sorted(stages, key=lambda s: (s.split("@")[0] in LAST, rank[s])):
             cmd = [sys.executable, "-m", "dvc", "repro", "--force", "--single-item", stage]
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
                 raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
+
+
+def _upstream_first(tree: Path) -> dict[str, int]:
+    """Every stage of ``tree``'s pipeline ranked so that each comes after those whose
+    outputs it reads (dvc.yaml's own order may put a data stage after its reader)."""
+    # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
+    import networkx as nx
+    from dvc.repo import Repo
+
+    graph = Repo(str(tree)).index.graph  # an edge runs from a stage to one it reads from
+    order = reversed(list(nx.lexicographical_topological_sort(graph, key=str)))
+    return {stage.name: k for k, stage in enumerate(order)}  # (addressing is relative to cwd)
 
 
 def _outputs(tree: Path, stage: str) -> list[Path]:
