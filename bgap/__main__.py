@@ -11,6 +11,7 @@ COMMANDS = {
     "datasets": ("bgap.datasets", "convert SUMO, highD or NGSIM traffic to bgap's table"),
     "cmetric": ("bgap.cmetric", "score any trajectory table for driving style (CMetric)"),
     "cmetric.search": ("bgap.cmetric.search", "tune CMetric's parameters on labelled tables"),
+    "cmetric.boundary": ("bgap.cmetric.boundary", "fix CMetric's aggressive/conservative boundary"),
     "calibrate": ("bgap.calibrate", "fit the driver classes to CMetric targets or to data"),
     "train": ("bgap.train", "train navigation policies (one or many seeds, resumable)"),
     "evaluate": ("bgap.evaluate", "evaluate models and baselines on seeded episodes"),
@@ -19,7 +20,7 @@ COMMANDS = {
     "recipe": ("bgap.recipe", "search the training recipe and check it on more seeds"),
     "parity": ("bgap.parity", "compare the vector backend with highway-env"),
     "figures": ("bgap.figures", "the study's figures, claims and results page"),
-    "bench": ("bgap.bench", "benchmarks: simulator, learner, CMetric"),
+    "bench": ("bgap.bench", "benchmarks: simulator, learner, CMetric, cluster"),
     "pipeline": ("bgap.pipeline", "the DVC pipeline's code deps; relock moved stages"),
 }
 

@@ -61,6 +61,7 @@ def _tables(folder: Path) -> None:
     (folder / "not_a_model.zip").write_text("not a zip archive")
     (folder / "done").mkdir()
     (folder / "done" / "README.md").write_text("an earlier run's results page\n")
+    (folder / "done" / "boundary.json").write_text("{}\n")
     import zipfile
 
     with zipfile.ZipFile(folder / "no_data.zip", "w") as archive:
@@ -180,6 +181,8 @@ CASES = [
     # --- figures: evaluation folders that hold no episodes, or damaged ones
     ("figures", ["{tmp}/nothing"], r"no evaluation episodes in .*nothing: run bgap.evaluate"),
     ("figures", ["{tmp}/nothing", "--out", "{tmp}/done"], r"done holds the results of an earlier"),
+    ("cmetric.boundary", ["{tmp}/good.csv", "--out", "{tmp}/done"], r"json.* from an earlier"),
+    ("cmetric.boundary", ["{tmp}/nothing"], r"nothing: no such file"),
     ("figures", ["{tmp}/evaluation"], r"episodes.parquet cannot be read as Parquet"),
     # --- parity: the fast mode's rows would replace the parity stage's own
     (
@@ -200,6 +203,7 @@ MODULES = {
     "parity": "bgap.parity",
     "bench": "bgap.bench",
     "figures": "bgap.figures",
+    "cmetric.boundary": "bgap.cmetric.boundary",
 }
 
 

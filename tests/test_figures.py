@@ -211,7 +211,8 @@ def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):
     replayed, _ = load_evaluations([folder])
     assert set(replayed.traffic) == {"replay/sumo-krauss-sparse/log",
                                      "replay/sumo-krauss-sparse/reactive"}  # fmt: skip
-    df = pd.concat([_study(lambda *a: 0.1).assign(traffic="paper"), replayed])
+    simulated = _study(lambda *a: 0.1, seeds=3, episodes=40, radii=(180.0,))
+    df = pd.concat([simulated.assign(traffic="paper"), replayed])
     assert duplicates(df) == {("sparse", 0.6): 0.5}  # the simulated grid's only
     table = claims(df).set_index("claim")
     row = table.loc["behaviour-rich collides less than default in observed traffic "

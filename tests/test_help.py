@@ -27,6 +27,7 @@ COMMANDS = (
     "bgap.calibrate",
     "bgap.cmetric",
     "bgap.cmetric.search",
+    "bgap.cmetric.boundary",
     "bgap.datasets",
     "bgap.figures",
     "bgap.parity",

@@ -279,7 +279,7 @@ KEYS = ("mix", "radius", "seed", "episodes", "env.duration", "env.vehicles_densi
         "env.vehicles_count", "env.lanes_count", "env.policy_frequency")  # fmt: skip
 
 
-@settings(max_examples=200, derandomize=True, deadline=None)
+@settings(max_examples=100, derandomize=True, deadline=None)
 @given(st.dictionaries(st.sampled_from(KEYS), NUMBERS, min_size=1, max_size=3))
 def test_any_generated_setting_is_accepted_or_refused_with_a_config_error(values):
     """Every generated value of the simulate command's numeric settings, composed through
@@ -387,7 +387,9 @@ TRAININGS = ("learner=sb3", "learner=batched", "agent=qrdqn", "agent=ppo")
 
 @pytest.mark.parametrize(
     "learner,kills",
-    [("learner=sb3", 2), ("learner=batched", 2),
+    # by default the batched learner's: the SB3 learner's kill at a random moment is
+    # tests/test_bad_inputs.py's (kill -9 after a first checkpoint), in a quarter of the time
+    [("learner=batched", 2), pytest.param("learner=sb3", 2, marks=pytest.mark.slow),
      *(pytest.param(t, 20, marks=pytest.mark.slow) for t in TRAININGS)],
 )  # fmt: skip
 def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters(

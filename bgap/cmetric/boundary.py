@@ -177,6 +177,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--preset", default=None, help="where the boundary preset goes "
                         "(default: <out>/<cmetric>.yaml)")  # fmt: skip
     args = parser.parse_args(argv)
+    preset = Path(args.preset or Path(args.out) / f"{args.cmetric}.yaml")
+    earlier = [str(p) for p in (Path(args.out) / "boundary.json", preset) if p.exists()]
+    if earlier:  # a rerun refuses (the pipeline's stage starts empty: DVC removes its outputs)
+        parser.exit(2, f"bgap.cmetric.boundary: {', '.join(earlier)} exist(s) from an earlier "
+                    "run; give another --out (and --preset), or remove them\n")  # fmt: skip
 
     def task() -> Path:
         result, report = fit(_tables(args.tables), args.cmetric)
@@ -187,7 +192,6 @@ def main(argv: list[str] | None = None) -> None:
         write_atomic(out / "command.txt", " ".join(["python -m bgap.cmetric.boundary",
                                                      *sys.argv[1:]]) + "\n")  # fmt: skip
         _plot(scored, result.boundary, out / "scores.png")
-        preset = Path(args.preset or out / f"{args.cmetric}.yaml")
         note = (f"Class boundary of cmetric={args.cmetric}, fixed by python -m "
                 f"bgap.cmetric.boundary on {len(result.tables)} labelled tables (Youden's J on "
                 f"their even episodes); report: {out / 'boundary.json'}")  # fmt: skip
