@@ -389,7 +389,7 @@ TRAININGS = ("learner=sb3", "learner=batched", "agent=qrdqn", "agent=ppo")
     "learner,kills",
     # by default the batched learner's: the SB3 learner's kill at a random moment is
     # tests/test_bad_inputs.py's (kill -9 after a first checkpoint), in a quarter of the time
-    [("learner=batched", 2), pytest.param("learner=sb3", 2, marks=pytest.mark.slow),
+    [("learner=batched", 1), pytest.param("learner=sb3", 2, marks=pytest.mark.slow),
      *(pytest.param(t, 20, marks=pytest.mark.slow) for t in TRAININGS)],
 )  # fmt: skip
 def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters(
