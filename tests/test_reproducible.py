@@ -14,8 +14,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 RERUNNING = {
-    "train@mix0-dense",
-    *(f"train@{arm}-{density}" for arm in ("mix50", "mix100") for density in ("sparse", "dense")),
+    "train@mix50-dense", "train@mix100-sparse", "train@mix100-dense",
     *(f"evaluate@{arm}" for arm in ("mix0", "mix50", "mix100")),
     "figures",
     *(f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")),
