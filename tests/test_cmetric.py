@@ -463,7 +463,7 @@ def test_a_table_without_labels_reads_near_its_true_share_through_the_boundary(
     table = sparse_mixed_recording
     labelled = tmp_path / "labelled.parquet"
     table.to_parquet(labelled)
-    fitted, report = classes.fit([labelled], "tuned")
+    fitted, report, _ = classes.fit([labelled], "tuned")
     assert fitted.balanced_accuracy > 0.7 and report["tuning_balanced_accuracy"] > 0.7
     tracks = table.drop_duplicates(["episode", "vehicle_id"])
     truth = (tracks.label == "aggressive").sum() / tracks.label.isin(

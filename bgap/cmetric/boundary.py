@@ -85,9 +85,10 @@ def labelled_scores(tables: list[Path], cfg: CMetricConfig) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True)
 
 
-def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict]:
-    """The boundary of the CMetric preset ``cmetric`` on ``tables`` (even episodes), with the
-    balanced accuracy of both parts and each part's size."""
+def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict, pd.DataFrame]:
+    """The boundary of the CMetric preset ``cmetric`` on ``tables`` (even episodes), its
+    report (the balanced accuracy of both parts and each part's size) and the scored
+    vehicles (:func:`labelled_scores`)."""
     cfg = load_preset(CMetricConfig, preset_path("cmetric", cmetric))
     scored = labelled_scores(tables, cfg)
     even = scored.episode.astype(int) % 2 == 0
@@ -107,7 +108,7 @@ def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict]:
         "tuning_vehicles": len(tune), "validation_vehicles": len(check),
         "aggressive_share_tuning": float(y.mean()),
     }  # fmt: skip
-    return result, report | {"_scored": scored}
+    return result, report, scored
 
 
 def share(table: str | Path | pd.DataFrame, boundary: ClassBoundary) -> float:
@@ -184,8 +185,7 @@ def main(argv: list[str] | None = None) -> None:
                     "run; give another --out (and --preset), or remove them\n")  # fmt: skip
 
     def task() -> Path:
-        result, report = fit(_tables(args.tables), args.cmetric)
-        scored = report.pop("_scored")
+        result, report, scored = fit(_tables(args.tables), args.cmetric)
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)
         write_atomic(out / "boundary.json", json.dumps(report, indent=1))

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import os
 import socket
+import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -24,6 +25,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
+from bgap.common.runs import unpack
 
 ENV_ADDRESS, ENV_STORAGE = "BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE"
 """Environment variables that give ``cluster.address`` and ``cluster.storage`` when a command
@@ -88,6 +90,34 @@ def writable(storage: str, where: str = "here") -> Path:
     return path
 
 
+@contextmanager
+def task_folder(storage: str | None) -> Iterator[Path]:
+    """On a node: the folder a training task works in, ``storage`` (checked writable there;
+    kept, so that a retried task finds the lost one's checkpoints) or a temporary one."""
+    with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
+        yield writable(storage, f"on node {socket.gethostname()}") if storage else Path(tmp)
+
+
+def ship_in(packed: bytes, folder: Path) -> None:
+    """A run folder shipped to a node (:func:`bgap.common.runs.pack`) unpacked into
+    ``folder``, unless a lost attempt left a checkpoint there to resume from."""
+    if not (folder / "checkpoints" / "state.pkl").exists():
+        unpack(packed, folder)
+
+
+def kept_trainings(storage: str | None) -> str:
+    """What Ctrl-C on the driver keeps of trainings sent to a cluster."""
+    if storage:
+        return (
+            f"the finished trainings are in their run folders, the others' last checkpoints "
+            f"in {storage} (cluster.storage): rerun the same command with resume=true"
+        )
+    return (
+        "the finished trainings are in their run folders; the others kept nothing "
+        "(cluster.storage keeps their checkpoints): rerun the same command with resume=true"
+    )
+
+
 def _ray() -> Any:
     try:
         import ray
@@ -146,7 +176,6 @@ def _quiet_stderr() -> Iterator[None]:
     failed attempt there (a refused token: a line a second for 20 s) beside the one line
     bgap gives for the failure."""
     import sys
-    import tempfile
 
     sys.stderr.flush()
     saved = os.dup(2)

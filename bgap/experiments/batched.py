@@ -28,7 +28,15 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import MODEL_ATTRIBUTE, with_features
-from bgap.common.cluster import connected, run_tasks, writable
+from bgap.common.cluster import (
+    ClusterConfig,
+    connected,
+    kept_trainings,
+    run_tasks,
+    ship_in,
+    task_folder,
+    writable,
+)
 from bgap.common.errors import ConfigError, Interrupted, check
 from bgap.common.runs import digest, exclusive, pack, unpack, write_atomic
 from bgap.experiments.config import ExperimentConfig
@@ -138,20 +146,13 @@ def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool) 
     if not todo:
         return
     cluster = cfgs[0].cluster
-    kept = (
-        f"the members' last checkpoints are in {cluster.storage} (cluster.storage): rerun the "
-        "same command with resume=true"
-        if cluster.storage
-        else "the members kept nothing (cluster.storage keeps their checkpoints); rerun the "
-        "same command with resume=true"
-    )
     members = [cfgs[i] for i in todo]
     if progress:
         print(f"{len(members)} members of one batched learner as a Ray task on "
               f"{cluster.address}", flush=True)  # fmt: skip
     (packed,) = run_tasks(
         cluster, _members_task, [(members, [pack(dirs[i]) for i in todo], cluster.storage)],
-        kept=kept,
+        kept=kept_trainings(cluster.storage),
     )  # fmt: skip
     for i, data in zip(todo, packed, strict=True):
         unpack(data, dirs[i])
@@ -162,20 +163,13 @@ def _members_task(
 ) -> list[bytes]:
     """On a node: the shipped members trained to the end in one batched learner (each
     resumed from its checkpoint, or from one a lost attempt left in ``storage``)."""
-    import socket
-    import tempfile
-
-    from bgap.common.cluster import ClusterConfig
-
-    with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
-        base = writable(storage, f"on node {socket.gethostname()}") if storage else Path(tmp)
+    with task_folder(storage) as base:
         group = base / f"batched-{digest([run_name(c) for c in cfgs])}"
         here = [replace(c, run_dir=str(group), root=str(base), cluster=ClusterConfig(),
                         resume=True) for c in cfgs]  # fmt: skip
         work = member_dirs(here)
         for data, d in zip(packed, work, strict=True):
-            if not (d / "checkpoints" / "state.pkl").exists():
-                unpack(data, d)
+            ship_in(data, d)
         train_batched(here, progress=False)
         return [pack(d) for d in work]
 

@@ -18,8 +18,6 @@ environments restart on fresh seeds.
 from __future__ import annotations
 
 import pickle
-import socket
-import tempfile
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -42,7 +40,15 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import with_features
-from bgap.common.cluster import ClusterConfig, connected, run_tasks, writable
+from bgap.common.cluster import (
+    ClusterConfig,
+    connected,
+    kept_trainings,
+    run_tasks,
+    ship_in,
+    task_folder,
+    writable,
+)
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
 from bgap.common.runs import exclusive, held_by_parent, pack, unpack, write_atomic
@@ -248,14 +254,7 @@ def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Pa
             bar.write(f"finished: {todo[k][0].policy} seed {todo[k][0].seed} in {todo[k][1]}")
             bar.update()
 
-        kept = (
-            f"the finished trainings are in their run folders, the others' last checkpoints "
-            f"in {cluster.storage} (cluster.storage): rerun the same command with resume=true"
-            if cluster.storage
-            else "the finished trainings are in their run folders; the others kept nothing "
-            "(cluster.storage keeps their checkpoints): rerun the same command with resume=true"
-        )
-        run_tasks(cluster, _train_task, calls, done, kept)
+        run_tasks(cluster, _train_task, calls, done, kept_trainings(cluster.storage))
         bar.close()
     return dirs
 
@@ -263,11 +262,9 @@ def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Pa
 def _train_task(cfg: ExperimentConfig, packed: bytes, storage: str | None) -> bytes:
     """On a node: the shipped run folder trained to the end (resumed from its checkpoint, or
     from one a lost attempt left in ``storage``), sent back whole."""
-    with tempfile.TemporaryDirectory(prefix="bgap-") as tmp:
-        base = writable(storage, f"on node {socket.gethostname()}") if storage else Path(tmp)
+    with task_folder(storage) as base:
         work = base / f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
-        if not (work / "checkpoints" / "state.pkl").exists():
-            unpack(packed, work)
+        ship_in(packed, work)
         train(replace(cfg, run_dir=str(work), resume=True, cluster=ClusterConfig()), False)
         return pack(work)
 
