@@ -120,7 +120,7 @@ def _worker(tmp_path: Path, url: str, trials: int, study: str) -> subprocess.Pop
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
 
 
-@pytest.mark.slow  # ~40 s; the killed-worker test below runs a worker on PostgreSQL by default
+@pytest.mark.slow  # ~40 s; .ci/run's cluster tests run sweep workers on PostgreSQL
 def test_two_workers_share_one_postgres_study(tmp_path, postgres):
     workers = [_worker(tmp_path, postgres, 4, "shared") for _ in range(2)]
     for w in workers:
@@ -134,6 +134,7 @@ def test_two_workers_share_one_postgres_study(tmp_path, postgres):
     assert len(set(runs)) == len(runs)  # no trial number (run folder) done twice
 
 
+@pytest.mark.slow  # ~12 s; .ci/run's cluster tests kill a sweep worker on PostgreSQL too
 def test_a_killed_workers_trial_does_not_block_the_study(tmp_path, postgres, monkeypatch):
     from optuna.trial import TrialState
 
