@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -62,6 +63,14 @@ def _tables(folder: Path) -> None:
     (folder / "done").mkdir()
     (folder / "done" / "README.md").write_text("an earlier run's results page\n")
     (folder / "done" / "boundary.json").write_text("{}\n")
+    (folder / "empty_run").mkdir()  # a typo's folder, or one killed before a checkpoint
+    (folder / "broken").mkdir()
+    (folder / "broken" / "config.yaml").write_text("mix: [0.5\n")  # cut short
+    (folder / "broken" / "trajectories.parquet").write_bytes(b"a user's table")
+    (folder / "parity").mkdir()
+    pd.DataFrame({"seed": [0], "mix": [0.5], "backend": ["highway"]}).to_csv(
+        folder / "parity" / "episodes.csv", index=False
+    )
     import zipfile
 
     with zipfile.ZipFile(folder / "no_data.zip", "w") as archive:
@@ -190,6 +199,25 @@ CASES = [
         ["--fast", "--out", "results/parity"],
         r"--fast needs its own --out \(got results/parity\)",
     ),
+    # --- inputs nobody listed (issue 34, second look)
+    ("parity", ["--mixes", "x", "--out", "{tmp}/p"], r"--mixes='x' is invalid: give fractions"),
+    ("parity", ["--mixes", "2", "--out", "{tmp}/p"], r"every mix must lie in \[0, 1\]"),
+    ("parity", ["--seed", "-5", "--out", "{tmp}/p"], r"--seed=-5 is invalid"),
+    ("parity", ["--backends", "gpu", "--out", "{tmp}/p"], r"--backends='gpu' is invalid"),
+    ("parity", ["--backends", "vector", "--out", "{tmp}/p"], r"parity compares both backends"),
+    ("parity", ["--out", "{tmp}/parity"], r"parity holds the results of an earlier run"),
+    (
+        "parity",
+        ["--reuse", "--backends", "vector", "--out", "{tmp}/parity"],
+        r"holds highway episodes of other mixes or seeds",
+    ),  # fmt: skip
+    ("simulate", ["out={tmp}/broken"], r"broken/config.yaml is not a settings file bgap can read"),
+    ("simulate", ["reward.speed_range=[30]"], r"reward\.speed_range=\[30\.0\] is invalid"),
+    ("simulate", ["env.ego_speeds=[20,10]"], r"env\.ego_speeds=\[20\.0, 10\.0\] is invalid"),
+    ("train", ["agent.net_arch=[64,0]"], r"agent\.net_arch=\[64, 0\] is invalid"),
+    ("train", ["resume=true", "run_dir={tmp}/empty_run"], r"no checkpoint was written there yet"),
+    ("sweep", ["trials=0"], r"trials=0 is invalid: must be >= 1"),
+    ("sweep", ["sweep_eval_episodes=0"], r"sweep_eval_episodes=0 is invalid"),
 ]
 
 MODULES = {
@@ -355,7 +383,9 @@ def test_settings_that_differ_never_share_a_folder_or_a_study():
     assert study_name(sweep) == study_name(replace(sweep, trials=99))  # a rerun's budget
 
 
-def test_a_training_killed_at_any_moment_resumes_to_the_same_parameters(tmp_path):
+def test_a_training_killed_at_any_moment_resumes_to_the_same_parameters(
+    tmp_path, monkeypatch, capsys
+):
     """kill -9 while training (vector backend): the resumed run, from the last checkpoint,
     ends with the parameters of an uninterrupted run."""
     import os
@@ -379,6 +409,12 @@ def test_a_training_killed_at_any_moment_resumes_to_the_same_parameters(tmp_path
     child.send_signal(signal.SIGKILL)
     child.wait()
     assert state.exists() and not (tmp_path / "cut/model.zip").exists()
+    # a damaged checkpoint (a copy of this one): one line, not an UnpicklingError
+    shutil.copytree(tmp_path / "cut", tmp_path / "damaged")
+    (tmp_path / "damaged/checkpoints/state.pkl").write_bytes(b"\x80\x04 not a pickle")
+    damaged = [*overrides, f"run_dir={tmp_path}/damaged", "resume=true"]
+    status, err = _command("train", damaged, monkeypatch, capsys)
+    assert status == 2 and "holds a damaged checkpoint" in err and err.count("\n") == 1, err
     cfg = validate(compose("train", [*overrides, f"run_dir={tmp_path}/cut", "resume=true"]))
     cut = train(cfg, progress=False)
 

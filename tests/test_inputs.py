@@ -43,7 +43,7 @@ def test_cmetric_refuses_to_write_its_scores_over_its_input(tmp_path, monkeypatc
     runs = _table(tmp_path / "runs.csv")
     before = _digest(runs)
     status, err = _command("cmetric", ["input=runs.csv", "out=runs.csv"], monkeypatch, capsys)
-    assert status == 2 and "is the input table" in err and err.count("\n") == 1, err
+    assert status == 2 and "runs.csv, the input table" in err and err.count("\n") == 1, err
     assert _digest(runs) == before
 
 
@@ -61,8 +61,25 @@ def test_cmetric_keeps_scores_of_other_settings_and_a_users_file(tmp_path, monke
     assert _command("cmetric", ["input=runs.csv", "out=s.csv"], monkeypatch, capsys)[0] == 0
     (tmp_path / "mine.csv").write_text("a user's own table\n")
     status, err = _command("cmetric", ["input=runs.csv", "out=mine.csv"], monkeypatch, capsys)
-    assert status == 2 and "was not written by bgap.cmetric" in err, err
+    assert status == 2 and "did not write" in err, err
     assert (tmp_path / "mine.csv").read_text() == "a user's own table\n"
+
+
+def test_cmetric_side_files_never_replace_an_input_or_a_users_file(tmp_path, monkeypatch, capsys):
+    """Beside ``out=t.csv`` bgap.cmetric writes t_windows.parquet, t_centrality.png and
+    t_config.yaml: none of them may be the input table or a user's file."""
+    monkeypatch.chdir(tmp_path)
+    pd.read_csv(_table(tmp_path / "runs.csv")).to_parquet(tmp_path / "t_windows.parquet")
+    before = _digest(tmp_path / "t_windows.parquet")
+    args = ["input=t_windows.parquet", "out=t.csv"]
+    status, err = _command("cmetric", args, monkeypatch, capsys)
+    assert status == 2 and "would write t_windows.parquet, the input table" in err, err
+    (tmp_path / "u_centrality.png").write_bytes(b"a user's figure")
+    status, err = _command("cmetric", ["input=runs.csv", "out=u.csv"], monkeypatch, capsys)
+    assert status == 2 and "u_centrality.png exist(s) and bgap.cmetric did not write" in err, err
+    assert _digest(tmp_path / "t_windows.parquet") == before
+    assert (tmp_path / "u_centrality.png").read_bytes() == b"a user's figure"
+    assert not (tmp_path / "u.csv").exists() and not (tmp_path / "t.csv").exists()
 
 
 def test_simulate_refuses_a_folder_of_a_users_files(tmp_path, monkeypatch, capsys):
@@ -306,14 +323,20 @@ COMMANDS = ("train", "evaluate", "run", "sweep", "recipe", "calibrate", "dataset
 """Every Hydra command's config (cmetric_search needs its tables: tests/test_bad_inputs.py)."""
 
 
-def _numeric_keys(cfg) -> list[str]:
+def _numeric_keys(cfg, lists: bool = False) -> list[str]:
+    """The int and float settings of ``cfg`` (``lists``: its lists of numbers instead)."""
     from omegaconf import OmegaConf
+
+    def number(value) -> bool:
+        return isinstance(value, (int, float)) and not isinstance(value, bool)
 
     def walk(node, prefix=""):
         for key, value in node.items():
             if isinstance(value, dict):
                 yield from walk(value, f"{prefix}{key}.")
-            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+            elif not lists and number(value):
+                yield f"{prefix}{key}"
+            elif lists and isinstance(value, list) and value and all(map(number, value)):
                 yield f"{prefix}{key}"
 
     return sorted(walk(OmegaConf.to_container(cfg)))
@@ -321,15 +344,16 @@ def _numeric_keys(cfg) -> list[str]:
 
 @pytest.mark.parametrize(
     "command,examples",
-    [*((c, 8) for c in COMMANDS),
+    [*((c, 16) for c in COMMANDS),
      *(pytest.param(c, 200, marks=pytest.mark.slow) for c in COMMANDS)],
 )  # fmt: skip
 def test_any_generated_setting_of_any_command_is_accepted_or_refused_in_one_line(command, examples):
-    """Generated combinations (8 per command; 200 under -m slow, about 40 s per command on
-    2 cores) of up to three of the command's numeric settings (every
-    int and float key of its composed config), merged as the command line merges them
-    (OmegaConf's typed merge; composing through Hydra per case costs 0.3 s): each validates,
-    with every number finite and every seed in numpy's range, or is refused with a
+    """Generated combinations (16 per command, with the simulate test above over 200 in the
+    default suite; 200 per command under -m slow, about 40 s per command on 2 cores) of up to
+    three of the command's numeric settings (every int and float key of its composed config,
+    and every list of numbers given as a list of 0-3 numbers), merged as the command line
+    merges them (OmegaConf's typed merge; composing through Hydra per case costs 0.3 s): each
+    validates, with every number finite and every seed in numpy's range, or is refused with a
     one-line ConfigError naming a setting (one of these, or the other side of a constraint
     between two: ``sumo.length=0`` is refused as ``sumo.ego_position=2000.0 ... must lie on
     the road``), or one of OmegaConf's known type errors."""
@@ -340,16 +364,21 @@ def test_any_generated_setting_of_any_command_is_accepted_or_refused_in_one_line
     base = compose(command, [])
     keys = _numeric_keys(base)
     assert len(keys) >= 5, keys
+    listed = _numeric_keys(base, lists=True)
+    value = st.sampled_from(keys).flatmap(lambda k: st.tuples(st.just(k), NUMBERS))
+    if listed:
+        lists = st.tuples(st.sampled_from(listed), st.lists(NUMBERS, max_size=3))
+        value = st.one_of(value, lists)
 
     @settings(max_examples=examples, derandomize=True, deadline=None, database=None)
-    @given(st.dictionaries(st.sampled_from(keys), NUMBERS, min_size=1, max_size=3))
+    @given(st.lists(value, min_size=1, max_size=3, unique_by=lambda kv: kv[0]).map(dict))
     def check(values):
         try:
             merged = OmegaConf.merge(base, OmegaConf.from_dotlist(
                 [f"{k}={v!r}" for k, v in values.items()]))  # fmt: skip
             cfg = validate(merged)
         except ConfigError as err:
-            assert re.search(r"\b[a-z_][a-z0-9_.]*=", str(err)), (values, str(err))
+            assert re.search(r"\b[a-z_][a-z0-9_.]*(\[\d+\])?=", str(err)), (values, str(err))
             assert "\n" not in str(err)
             return
         except Exception as err:  # noqa: BLE001 - OmegaConf's own type errors
@@ -413,7 +442,10 @@ def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters
         except subprocess.TimeoutExpired:
             first.kill()  # SIGKILL: no handler runs
             first.wait()
-        resumed = _train(run, learner, resume=(run / "config.yaml").exists())
+        # what a user does: resume=true where a checkpoint was written (bgap.train refuses it
+        # with nothing to resume), the same command again where none was
+        saved = any(run.rglob("state.pkl")) or any(run.rglob("model.zip"))
+        resumed = _train(run, learner, resume=saved)
         assert resumed.wait(timeout=600) == 0, f"repetition {k}: the resume failed"
         assert _weights(run) == _weights(whole), f"repetition {k}: other weights"
 
@@ -436,3 +468,30 @@ def test_a_log_whose_vehicles_keep_their_own_clocks_is_refused_and_a_common_cloc
     # one step less a hair: the same clock (0.0 and 0.039 s of a 0.04 s step)
     near = [(v, k * 0.04 + o, float(k), 0.0) for v, o in ((0, 0.0), (1, 0.039)) for k in range(30)]
     assert load_trajectories(pd.DataFrame(near, columns=["vehicle_id", "time", "x", "y"])).size
+
+
+def test_a_preset_is_rewritten_only_by_the_run_that_wrote_it(tmp_path):
+    """Two sweeps under one root write the same default preset path: the second is refused
+    instead of replacing the first's preset; the first, resumed, rewrites its own; a user's
+    file of that name is never replaced."""
+    from bgap.common.presets import write_preset
+    from bgap.traffic.scenario import RewardConfig
+
+    path = tmp_path / "presets" / "reward" / "user_tuned.yaml"
+    write_preset(
+        RewardConfig(collision=-2.0), "reward", path, "sweep (study a) trial 1", "(study a)"
+    )
+    first = path.read_text()
+    assert "collision: -2.0" in first and first.startswith("# sweep (study a) trial 1\n")
+    with pytest.raises(ConfigError, match="holds a preset this run did not write"):
+        write_preset(RewardConfig(), "reward", path, "sweep (study b) trial 3", "(study b)")
+    assert path.read_text() == first
+    write_preset(
+        RewardConfig(collision=-3.0), "reward", path, "sweep (study a) trial 7", "(study a)"
+    )
+    assert "collision: -3.0" in path.read_text()
+    mine = tmp_path / "mine.yaml"
+    mine.write_text("collision: -9\n")
+    with pytest.raises(ConfigError, match="mine.yaml holds a preset this run did not write"):
+        write_preset(RewardConfig(), "reward", mine, "sweep (study a)", "(study a)")
+    assert mine.read_text() == "collision: -9\n"

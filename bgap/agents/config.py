@@ -80,6 +80,8 @@ class AgentConfig:
     def __post_init__(self) -> None:
         check(self.algo in ALGOS, "agent.algo", self.algo, f"use one of {', '.join(ALGOS)}")
         check(self.loss in ("mse", "huber"), "agent.loss", self.loss, "use mse or huber")
+        check(all(width >= 1 for width in self.net_arch), "agent.net_arch", self.net_arch,
+              "every layer needs a width >= 1 ([] for no hidden layer)")  # fmt: skip
         check(self.extractor in EXTRACTORS, "agent.extractor", self.extractor,
               f"use one of {', '.join(EXTRACTORS)}")  # fmt: skip
         check(self.attention_heads >= 1 and self.attention_dim % self.attention_heads == 0,

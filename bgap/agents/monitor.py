@@ -177,7 +177,7 @@ class TrainingMonitor:
             return  # ties: the later evaluation, which has trained longer
         self.state["best"] = dict(record)
         write_atomic(self.run_dir / BEST_MODEL, policy.save)  # whole or not at all
-        (self.run_dir / "best.json").write_text(json.dumps(self.state["best"], indent=1))
+        write_atomic(self.run_dir / "best.json", json.dumps(self.state["best"], indent=1))
         self.log("eval/best_episodes", record["episodes"])
 
     def checkpoint(self, save: dict[str, Callable[[Path], Any]], extra: dict[str, Any]) -> None:
@@ -253,7 +253,7 @@ def plot_learning_curves(run_dir: Path) -> Path | None:
     fig.suptitle(f"validation during training: {Path(run_dir).name}", fontsize=9)
     fig.tight_layout()
     out = Path(run_dir) / "learning_curves.png"
-    fig.savefig(out, dpi=110)
+    write_atomic(out, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
     return out
 

@@ -24,6 +24,7 @@ from bgap.analysis.paper import PAPER_CRASHES
 from bgap.analysis.stats import RULE_FLOOR
 from bgap.analysis.tables import table2
 from bgap.common.plotting import pyplot
+from bgap.common.runs import write_atomic
 
 
 # ---------------------------------------------------------------------- figures
@@ -66,7 +67,7 @@ def fig4(stats: pd.DataFrame, per_seed: pd.DataFrame, path: Path, arm: str = "ma
                 ax.legend(fontsize=8)
     fig.suptitle(f"Fig. 4 (bgap, {ARM_NAMES.get(arm, arm)}): radius {radius:g} m", fontsize=11)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
 
 
@@ -85,7 +86,7 @@ def fig6(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
         ax.set_ylabel("collision %")
         ax.legend(title="perception radius", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
 
 
@@ -120,7 +121,7 @@ def paper_vs_ours(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(f"The paper's bars beside ours ({ARM_NAMES.get(arm, arm)})", fontsize=11)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
 
 
@@ -148,7 +149,7 @@ def ablation(stats: pd.DataFrame, path: Path) -> bool:
             ax.set_xlabel("test aggressive fraction")
     axes[0, 0].legend(fontsize=7, title="behaviour-rich training traffic")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
     return True
 
@@ -206,7 +207,7 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
                 plt.Line2D([], [], marker="s", ls="none", color="0.5", label="idle")]  # fmt: skip
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=7)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
-    fig.savefig(path, dpi=110)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
     return True
 
@@ -224,11 +225,11 @@ def make_figures(
     (out / "figures").mkdir(parents=True, exist_ok=True)
     stats, per_seed = cell_stats(df)
     paths = {name: out / f"{name}.csv" for name in ("cells", "claims", "own_traffic")}
-    stats.to_csv(paths["cells"], index=False)
+    write_atomic(paths["cells"], lambda p: stats.to_csv(p, index=False))
     table = claims(df)
-    table.to_csv(paths["claims"], index=False)
+    write_atomic(paths["claims"], lambda p: table.to_csv(p, index=False))
     own = own_traffic(df)
-    own.to_csv(paths["own_traffic"], index=False)
+    write_atomic(paths["own_traffic"], lambda p: own.to_csv(p, index=False))
     grid = df[df.traffic == "paper"]
     headline = {
         f"{arm or 'baseline'}/{density}/{family}": {
@@ -236,9 +237,9 @@ def make_figures(
         }
         for (arm, density, family), g in _distinct(grid).groupby(["arm", "density", "family"])
     }
-    (out / "metrics.json").write_text(json.dumps(headline, indent=1, sort_keys=True))
+    write_atomic(out / "metrics.json", json.dumps(headline, indent=1, sort_keys=True))
     paths["table2"] = out / "table2.md"
-    paths["table2"].write_text(table2(stats))
+    write_atomic(paths["table2"], table2(stats))
     arms = [a for a in MIXTURE_ARMS if a in set(stats.arm)]
     for arm in arms:
         name = "fig4" if arm == "main" else f"fig4_{arm}"
@@ -253,5 +254,5 @@ def make_figures(
     if speed_vs_safety(stats, out / "figures" / "speed_vs_safety.png"):
         paths["speed_vs_safety"] = out / "figures" / "speed_vs_safety.png"
     paths["readme"] = out / "README.md"
-    paths["readme"].write_text(readme(df, stats, table, own, [*sources, *stock], models, paths))
+    write_atomic(paths["readme"], readme(df, stats, table, own, [*sources, *stock], models, paths))
     return paths

@@ -38,7 +38,7 @@ from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import save_run_metadata
+from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
@@ -218,8 +218,8 @@ def write_outputs(
             row[f"bgap_{label}"] = None if value is None else round(float(value), 3)
         rows.append(row)
     table = pd.DataFrame(rows)
-    table.to_csv(out / "table.csv", index=False)
-    (out / "table.md").write_text(table.to_markdown(index=False) + "\n")
+    write_atomic(out / "table.csv", lambda p: table.to_csv(p, index=False))
+    write_atomic(out / "table.md", table.to_markdown(index=False) + "\n")
 
     summary = {
         "converged": behavior.converged,
@@ -231,7 +231,7 @@ def write_outputs(
         "trials": {x: sum(len(s.trials) for s in ss) for x, ss in studies.items()},
         "best_value_last_round": {x: ss[-1].best_value for x, ss in studies.items()},
     }
-    (out / "scores.json").write_text(json.dumps(summary, indent=2))
+    write_atomic(out / "scores.json", json.dumps(summary, indent=2))
 
     fig, axes = plt.subplots(1, len(studies), figsize=(5 * len(studies), 3.4), squeeze=False)
     for ax, (label, rounds) in zip(axes[0], studies.items(), strict=True):
@@ -249,7 +249,7 @@ def write_outputs(
         ax.set_title(label)
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(out / "convergence.png", dpi=120)
+    write_atomic(out / "convergence.png", lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(5, 3.4))
@@ -262,7 +262,7 @@ def write_outputs(
     ax.set_title("calibrated preset (dashed: targets)")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "scores.png", dpi=120)
+    write_atomic(out / "scores.png", lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
     return summary
 
@@ -303,6 +303,7 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
         "behavior",
         preset_file(cfg),
         f"Written by python -m bgap.calibrate (targets: {targets}); report: {report_dir(cfg)}",
+        f"report: {report_dir(cfg)}",
     )
     return write_outputs(cfg, studies, behavior, stats)
 

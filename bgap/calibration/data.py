@@ -451,6 +451,7 @@ def calibrate_to_data(
         preset,
         f"Written by python -m bgap.calibrate calibrate.target={cfg.calibrate.target}; "
         f"report: {report}",
+        f"report: {report}",
     )
     points = cfg.calibrate.sensitivity_points
     sensitive = sensitivity(cfg, observed, study, reference) if points else None

@@ -14,6 +14,7 @@ import pandas as pd
 
 from bgap.calibration.kinematics import ALL_STATISTICS
 from bgap.common.plotting import pyplot
+from bgap.common.runs import write_atomic
 from bgap.common.studies import plot_convergence
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 from bgap.traffic.behaviors import BehaviorConfig
@@ -35,8 +36,8 @@ def write_report(
     ``observed``: the target's statistics (:class:`bgap.calibration.data.Observed`);
     ``simulated``: the scene the trials simulated."""
     out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / "statistics.csv", index=False)
-    (out / "statistics.md").write_text(table.to_markdown(index=False, floatfmt=".3f") + "\n")
+    write_atomic(out / "statistics.csv", lambda p: table.to_csv(p, index=False))
+    write_atomic(out / "statistics.md", table.to_markdown(index=False, floatfmt=".3f") + "\n")
     summary = {
         "target": target,
         "converged": behavior.converged,
@@ -55,7 +56,7 @@ def write_report(
     }
     if sensitive is not None:
         summary |= _write_sensitivity(sensitive, out)
-    (out / "scores.json").write_text(json.dumps(summary, indent=2, default=float))
+    write_atomic(out / "scores.json", json.dumps(summary, indent=2, default=float))
     _plot_statistics(observed, arms, out / "statistics.png")
     plot_convergence(study, out / "convergence.png", "weighted scaled distance")
     return summary
@@ -63,7 +64,7 @@ def write_report(
 
 def _write_sensitivity(sensitive: pd.DataFrame, out: Path) -> dict[str, Any]:
     """The sensitivity report's files; returns what ``scores.json`` says of it."""
-    sensitive.to_csv(out / "sensitivity.csv", index=False)
+    write_atomic(out / "sensitivity.csv", lambda p: sensitive.to_csv(p, index=False))
     noise = sensitive.attrs["noise"]
     (out / "sensitivity.md").write_text(
         f"Objective noise (standard deviation over scene sets): {noise:.4f}\n\n"
@@ -105,7 +106,7 @@ def _plot_statistics(observed: Any, arms: dict[str, dict], path: Path) -> None:
             if i == 0 and j == 0:
                 ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
 
 
@@ -132,5 +133,5 @@ def _plot_sensitivity(table: pd.DataFrame, path: Path) -> None:
         ax.axis("off")
     fig.supylabel("objective")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)

@@ -15,6 +15,7 @@ vehicle is flagged for having no evidence; ``<stem>_cmetric_windows.parquet`` (p
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
@@ -27,7 +28,7 @@ from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.runs import other_settings, save_run_metadata
+from bgap.common.runs import exclusive, other_settings, save_run_metadata, write_atomic
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -54,7 +55,7 @@ def plot_centrality(result, vehicle_ids, path: Path) -> None:
     axes[0].legend(fontsize=8)
     axes[0].set_title(f"CMetric centralities, episode {episode}")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
 
 
@@ -73,31 +74,41 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
         None if as_file else Path(cfg.out or f"outputs/cmetric/{source.stem}_{cfg.cmetric.name}")
     )
     out = Path(cfg.out) if as_file else folder / f"{source.stem}_cmetric.csv"
-    if out.resolve() == source.resolve():
-        raise ConfigError(f"out={cfg.out} is the input table; the scores go to another file")
+    stem = out.with_suffix("")
+    written = [out, Path(f"{stem}_windows.parquet"), Path(f"{stem}_centrality.png")]
+    if as_file:
+        written.append(Path(f"{stem}_config.yaml"))
+    for path in written:
+        if path.resolve() == source.resolve():
+            raise ConfigError(
+                f"out={cfg.out} would write {path.name}, the input table; the scores go to "
+                "another file"
+            )
     table = load_trajectories(source, fps=cfg.fps)  # a bad table fails before anything is written
     check_scoreable(table)
-    if folder is not None:
-        save_run_metadata(folder, dcfg)  # refuses a folder of other settings before scoring
-    else:
-        _refuse_other_scores(out, dcfg)
-    result = score_trajectories(table, cfg.cmetric, fps=cfg.fps, progress=True)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    stem = out.with_suffix("")
-    if out.suffix == ".parquet":
-        result.vehicles.to_parquet(out, index=False)
-    else:
-        result.vehicles.to_csv(out, index=False)
-    result.windows.to_parquet(f"{stem}_windows.parquet", index=False)
-    if as_file:
-        Path(f"{stem}_config.yaml").write_text(OmegaConf.to_yaml(dcfg, resolve=True))
-    vehicles = result.vehicles
-    chosen = list(cfg.plot_vehicles)
-    if not chosen:
-        first = vehicles[vehicles.episode == vehicles.episode.iloc[0]]
-        ranked = first.sort_values("aggressiveness").vehicle_id.tolist()
-        chosen = sorted(set(ranked[-2:] + ranked[:2]))
-    plot_centrality(result, chosen, Path(f"{stem}_centrality.png"))
+    with ExitStack() as held:
+        if folder is not None:
+            held.enter_context(exclusive(folder))
+            save_run_metadata(folder, dcfg)  # refuses a folder of other settings before scoring
+        else:
+            _refuse_other_scores(out, written, dcfg)
+        result = score_trajectories(table, cfg.cmetric, fps=cfg.fps, progress=True)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        # each file whole or not at all (a kill leaves no half-written table)
+        if out.suffix == ".parquet":
+            write_atomic(out, lambda p: result.vehicles.to_parquet(p, index=False))
+        else:
+            write_atomic(out, result.vehicles.to_csv(index=False))
+        write_atomic(written[1], lambda p: result.windows.to_parquet(p, index=False))
+        if as_file:
+            write_atomic(written[3], OmegaConf.to_yaml(dcfg, resolve=True))
+        vehicles = result.vehicles
+        chosen = list(cfg.plot_vehicles)
+        if not chosen:
+            first = vehicles[vehicles.episode == vehicles.episode.iloc[0]]
+            ranked = first.sort_values("aggressiveness").vehicle_id.tolist()
+            chosen = sorted(set(ranked[-2:] + ranked[:2]))
+        plot_centrality(result, chosen, written[2])
     flagged = int(vehicles.flagged.sum())
     print(f"scored {len(vehicles)} vehicles ({flagged} flagged: no evidence) -> {out}")
     if "label" in vehicles:
@@ -108,16 +119,19 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
             pass
 
 
-def _refuse_other_scores(out: Path, dcfg: DictConfig) -> None:
-    """A scores file may be rewritten only by the same settings: one that holds scores of
-    other settings, or a file no bgap command wrote (no ``<stem>_config.yaml``), is refused."""
-    if not out.exists():
-        return
+def _refuse_other_scores(out: Path, written: list[Path], dcfg: DictConfig) -> None:
+    """A scores file and its side files (``written``) may be rewritten only by the same
+    settings: ones that hold scores of other settings, or files no bgap command wrote (no
+    ``<stem>_config.yaml`` beside them), are refused."""
     stored = out.with_name(f"{out.stem}_config.yaml")
     if not stored.exists():
-        raise ConfigError(
-            f"out={out} exists and was not written by bgap.cmetric; choose a new file"
-        )
+        there = [p.name for p in written if p.exists()]
+        if there:
+            raise ConfigError(
+                f"out={out}: {', '.join(there)} exist(s) and bgap.cmetric did not write "
+                "them; choose a new file name"
+            )
+        return
     differs = other_settings(stored, OmegaConf.to_container(dcfg, resolve=True), ("out",))
     if differs:
         raise ConfigError(

@@ -161,7 +161,7 @@ def _plot(scored: pd.DataFrame, boundary: float, path: Path) -> None:
     ax.set_ylabel("density of vehicles")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
 
 

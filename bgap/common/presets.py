@@ -16,6 +16,9 @@ from typing import Any
 
 from omegaconf import OmegaConf
 
+from bgap.common.errors import ConfigError
+from bgap.common.runs import write_atomic
+
 CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 """The packaged configuration: Hydra's primary config folder."""
 
@@ -33,17 +36,32 @@ def load_preset(schema: type, path: str | Path) -> Any:
     return OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(schema), values))
 
 
-def write_preset(node: Any, group: str, path: str | Path, note: str) -> Path:
+def write_preset(node: Any, group: str, path: str | Path, note: str, owner: str) -> Path:
     """Write dataclass ``node`` as a preset of config group ``group`` (``group=<stem>`` then
     selects it when ``path`` is ``<search path>/<group>/<stem>.yaml``), headed by the comment
-    ``note``. Null values are left out: the groups written so (behavior, reward, agent)
-    default every optional field to null."""
+    ``note``, whole or not at all. Null values are left out: the groups written so (behavior,
+    reward, agent) default every optional field to null.
+
+    ``owner``, part of ``note``, names the run that writes it (its study or report): an
+    existing file whose first line does not hold it is another run's preset or a user's file,
+    and is refused rather than replaced (the same run, resumed, rewrites its own)."""
     path = Path(path)
+    if owner not in note:
+        raise ValueError(f"the note must name the owner {owner!r}")  # a caller's bug
+    if path.exists():
+        try:
+            first = path.read_text().partition("\n")[0]
+        except (OSError, UnicodeDecodeError):
+            first = ""
+        if owner not in first:
+            raise ConfigError(
+                f"{path} holds a preset this run did not write ({first[:80] or 'not a preset'}"
+                "); give the preset another path (preset=... or a new root), or remove that file"
+            )
     path.parent.mkdir(parents=True, exist_ok=True)
     body = OmegaConf.to_yaml(OmegaConf.structured(node))
     body = "\n".join(line for line in body.splitlines() if not line.endswith(": null"))
-    path.write_text(f"# {note}\ndefaults:\n  - base_{group}\n{body}\n")
-    return path
+    return write_atomic(path, f"# {note}\ndefaults:\n  - base_{group}\n{body}\n")
 
 
 def selection_hint(group: str, path: str | Path) -> str:

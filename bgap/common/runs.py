@@ -145,7 +145,18 @@ def read_or_refuse(read: Callable[[], T], what: str, fix: str) -> T:
 def other_settings(stored_path: Path, current: dict, ignore: tuple[str, ...]) -> str | None:
     """How the settings saved at ``stored_path`` differ from ``current`` (the first keys,
     with both values), or None when they do not."""
-    stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
+    try:
+        stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
+    except Exception as err:  # noqa: BLE001 - YAML's, OmegaConf's and decoding errors alike
+        raise ConfigError(
+            f"{stored_path} is not a settings file bgap can read ({type(err).__name__}); "
+            "choose another output folder, or remove that file if the folder is yours"
+        ) from None
+    if not isinstance(stored, dict):
+        raise ConfigError(
+            f"{stored_path} is not a settings file bgap wrote (it holds no settings); choose "
+            "another output folder, or remove that file if the folder is yours"
+        )
     keys = differing_keys(stored, current, ignore)
     if not keys:
         return None

@@ -19,6 +19,7 @@ from optuna.trial import TrialState
 
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
+from bgap.common.runs import write_atomic
 
 # Seconds between a running trial's heartbeats, and without one before it counts as dead.
 HEARTBEAT = (30, 90)
@@ -97,7 +98,7 @@ def plot_convergence(study: optuna.Study, path: str | Path, ylabel: str) -> None
     ax.set_ylabel(ylabel)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
 
 

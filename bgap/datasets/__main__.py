@@ -18,7 +18,7 @@ from tqdm import tqdm
 from bgap.cmetric.io import load_trajectories
 from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
-from bgap.common.runs import save_run_metadata
+from bgap.common.runs import exclusive, save_run_metadata, write_atomic
 from bgap.datasets.config import SCHEMAS, DatasetsConfig
 from bgap.datasets.sumo import record, sumo_home
 
@@ -26,17 +26,19 @@ from bgap.datasets.sumo import record, sumo_home
 def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
     """Record (SUMO) or convert (highD, NGSIM) the dataset ``cfg.source`` names into
     ``cfg.out``."""
-    if cfg.source == "sumo":
-        sumo_home()  # a missing optional extra fails before any folder is made
-        out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)
-        with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
-            table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)
-    else:
-        table = import_module(f"bgap.datasets.{cfg.source}").read(cfg.path)
-        load_trajectories(table)  # CMetric reads what is written (a defect fails here)
-        out = save_run_metadata(cfg.out or f"outputs/datasets/{cfg.source}", dcfg)
-    path = out / "trajectories.parquet"
-    table.to_parquet(path, index=False)
+    out = Path(cfg.out or f"outputs/datasets/{cfg.source}")
+    with exclusive(out):  # a second command writing the same folder is refused
+        if cfg.source == "sumo":
+            sumo_home()  # a missing optional extra fails before any folder is made
+            save_run_metadata(out, dcfg)
+            with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
+                table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)
+        else:
+            table = import_module(f"bgap.datasets.{cfg.source}").read(cfg.path)
+            load_trajectories(table)  # CMetric reads what is written (a defect fails here)
+            save_run_metadata(out, dcfg)
+        path = out / "trajectories.parquet"
+        write_atomic(path, lambda p: table.to_parquet(p, index=False))
     counts = table.drop_duplicates(["episode", "vehicle_id"]).label.value_counts().to_dict()
     scenes = table.episode.nunique()
     print(f"{len(table)} rows, {scenes} scenes, vehicles per class {counts} -> {path}")

@@ -36,7 +36,14 @@ from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import CONF_DIR
-from bgap.common.runs import CONFIG, MODEL, model_file, save_run_metadata, write_atomic
+from bgap.common.runs import (
+    CONFIG,
+    MODEL,
+    exclusive,
+    model_file,
+    save_run_metadata,
+    write_atomic,
+)
 from bgap.common.tables import read_table
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
@@ -383,7 +390,7 @@ def plot_comparison(summary: pd.DataFrame, path: Path, title: str = "") -> bool:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
     return True
 
@@ -459,15 +466,17 @@ def main(dcfg: DictConfig) -> None:
 
 def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
     out = Path(cfg.out or Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}")
-    save_run_metadata(out, dcfg)
-    specs = policy_specs(cfg)
-    episodes = compact(evaluate(cfg, specs))  # what is stored is what is summarised
-    summary = summarize(episodes)
-    write_results(out, episodes, summary)
-    models = model_records(specs)
-    if len(models):
-        write_atomic(out / MODELS, lambda tmp: models.to_csv(tmp, index=False))
-    if not plot_comparison(summary, out / "comparison.png"):
+    with exclusive(out):  # a second evaluation into the same folder is refused
+        save_run_metadata(out, dcfg)
+        specs = policy_specs(cfg)
+        episodes = compact(evaluate(cfg, specs))  # what is stored is what is summarised
+        summary = summarize(episodes)
+        write_results(out, episodes, summary)
+        models = model_records(specs)
+        if len(models):
+            write_atomic(out / MODELS, lambda tmp: models.to_csv(tmp, index=False))
+        drawn = plot_comparison(summary, out / "comparison.png")
+    if not drawn:
         print(f"comparison.png not drawn: {len(summary)} bars (at most {MAX_BARS})")
     if len(summary) <= MAX_BARS:
         print(format_table(summary))

@@ -19,9 +19,13 @@ from tqdm.auto import tqdm
 
 from bgap.agents.policies import rollout
 from bgap.analysis.stats import t_interval, wilson_interval
-from bgap.common.cli import OneLineParser, fail, positive
-from bgap.common.config import validate
+from bgap.common.cli import OneLineParser, positive
+from bgap.common.cli import run as run_cli
+from bgap.common.config import SEED_MAX, validate
+from bgap.common.errors import ConfigError, check
 from bgap.common.plotting import pyplot
+from bgap.common.runs import exclusive, write_atomic
+from bgap.common.tables import read_csv
 from bgap.common.vocab import CLASSES
 from bgap.datasets.config import compose
 from bgap.traffic.scenario import env_config, fast_mode
@@ -140,7 +144,7 @@ def plot(table: pd.DataFrame, path: Path) -> None:
         ax.set_xlabel("mix")
     np.atleast_1d(axes)[0].legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
 
 
@@ -183,34 +187,86 @@ def main(argv: list[str] | None = None) -> None:
         help="keep the other backends' rows of an existing episodes.csv (same settings)",
     )
     args = parser.parse_args(argv)
+    run_cli("bgap.parity", lambda: _parity(args),
+            f"the episodes played so far are in {args.out}/episodes.csv; add --reuse to keep "
+            "them")  # fmt: skip
+
+
+WRITTEN = ("episodes.csv", "parity.csv", "parity.png")
+"""What :func:`main` writes into ``--out``."""
+
+
+def _mixes(text: str) -> list[float]:
+    try:
+        mixes = [float(m) for m in text.split(",")]
+    except ValueError:
+        raise ConfigError(f"--mixes={text!r} is invalid: give fractions in [0, 1] separated "
+                          "by commas, e.g. 0,0.5,1") from None  # fmt: skip
+    check(all(0 <= m <= 1 for m in mixes), "--mixes", text, "every mix must lie in [0, 1]")
+    return [m + 0.0 for m in mixes]  # -0.0 is 0.0
+
+
+def _kept_rows(path: Path, backends: list[str], mixes: list[float], seeds: list[int]):
+    """``--reuse``: the other backends' rows of an earlier ``episodes.csv``, refused unless
+    they are the same episodes (mixes and seeds) this run plays."""
+    old = read_csv(path)
+    missing = {"seed", "mix", "backend"} - set(old.columns)
+    if missing:
+        raise ConfigError(f"{path} is not a bgap.parity episode table (no {sorted(missing)} "
+                          "column); give another --out or leave out --reuse")  # fmt: skip
+    kept = old[~old.backend.isin(backends)]
+    want = {(m, s) for m in mixes for s in seeds}
+    for backend, rows in kept.groupby("backend"):
+        if set(zip(rows.mix, rows.seed, strict=True)) != want:
+            raise ConfigError(
+                f"{path} holds {backend} episodes of other mixes or seeds than --mixes "
+                f"{','.join(map(str, mixes))} --seed {seeds[0]} --episodes {len(seeds)}; give "
+                "those settings, or leave out --reuse"
+            )
+    return kept
+
+
+def _parity(args: argparse.Namespace) -> None:
     out = Path(args.out)
     if args.fast and out.resolve() == Path("results/parity").resolve():
         # its rows are labelled "vector": they must not replace the parity stage's results
-        fail("bgap.parity", f"--fast needs its own --out (got {args.out}): give a copy of it")
-    out.mkdir(parents=True, exist_ok=True)
-    frames = []
+        raise ConfigError(f"--fast needs its own --out (got {args.out}): give a copy of it")
     backends = args.backends.split(",")
-    if args.reuse and (out / "episodes.csv").exists():
-        old = pd.read_csv(out / "episodes.csv")
-        frames.append(old[~old.backend.isin(backends)])
-    mixes = [float(m) for m in args.mixes.split(",")]
+    unknown = sorted(set(backends) - {"vector", "highway"})
+    check(not unknown, "--backends", args.backends, "use vector, highway or vector,highway")
+    mixes = _mixes(args.mixes)
+    check(0 <= args.seed <= SEED_MAX - args.episodes, "--seed", args.seed,
+          f"must lie in [0, {SEED_MAX} - episodes] (numpy's seeds)")  # fmt: skip
     seeds = list(range(args.seed, args.seed + args.episodes))
-    for mix in tqdm(mixes, desc="mixes"):
-        overrides = [f"env={args.env}", f"mix={mix}"]
-        if args.duration:
-            overrides.append(f"env.duration={args.duration}")
-        config = env_config(validate(compose("simulate", overrides)))
-        for backend in ("vector", "highway"):
-            if backend not in backends:
-                continue
-            fast = args.fast and backend == "vector"
-            df = run(fast_mode(config) if fast else config, seeds, backend)
-            df["mix"], df["backend"] = mix, backend
-            frames.append(df)
-            pd.concat(frames).to_csv(out / "episodes.csv", index=False)
-    table = compare(pd.concat(frames))
-    table.to_csv(out / "parity.csv", index=False)
-    plot(table, out / "parity.png")
+    earlier = [n for n in WRITTEN if (out / n).exists()]
+    if earlier and not args.reuse:  # a rerun never overwrites an earlier result (the
+        # pipeline's stage starts without them: DVC removes a stage's outputs first)
+        raise ConfigError(f"{out} holds the results of an earlier run ({', '.join(earlier)}); "
+                          "give another --out, or --reuse to keep its episodes")  # fmt: skip
+    frames = []
+    if args.reuse and (out / "episodes.csv").exists():
+        frames.append(_kept_rows(out / "episodes.csv", backends, mixes, seeds))
+    compared = set(backends).union(*(set(f.backend) for f in frames))
+    check(compared == {"vector", "highway"}, "--backends", args.backends,
+          "parity compares both backends: give vector,highway, or one of them with --reuse "
+          "of an --out holding the other's episodes")  # fmt: skip
+    with exclusive(out):
+        for mix in tqdm(mixes, desc="mixes"):
+            overrides = [f"env={args.env}", f"mix={mix}"]
+            if args.duration:
+                overrides.append(f"env.duration={args.duration}")
+            config = env_config(validate(compose("simulate", overrides)))
+            for backend in ("vector", "highway"):
+                if backend not in backends:
+                    continue
+                fast = args.fast and backend == "vector"
+                df = run(fast_mode(config) if fast else config, seeds, backend)
+                df["mix"], df["backend"] = mix, backend
+                frames.append(df)
+                write_atomic(out / "episodes.csv", pd.concat(frames).to_csv(index=False))
+        table = compare(pd.concat(frames))
+        write_atomic(out / "parity.csv", lambda p: table.to_csv(p, index=False))
+        plot(table, out / "parity.png")
     with pd.option_context("display.width", 160, "display.max_rows", 100):
         print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
 

@@ -46,7 +46,7 @@ from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
 from bgap.common.config import app, load, validate
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import save_run_metadata
+from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
 from bgap.experiments.evaluate import crash_split
@@ -267,7 +267,7 @@ def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
         ax.text(0.5, 0.5, "no periodic validation in these trainings\n"
                 "(profile.eval_every_episodes=0)", ha="center", va="center")  # fmt: skip
         ax.set_axis_off()
-        fig.savefig(path, dpi=110)
+        write_atomic(path, lambda p: fig.savefig(p, dpi=110))
         plt.close(fig)
         return
 
@@ -293,7 +293,7 @@ def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
     axes[0].legend(fontsize=7)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
 
 
@@ -353,14 +353,14 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     chosen_from = candidates(study, cfg.candidates)
     rows = [row for t in chosen_from for row in check_candidate(cfg, t, root, progress)]
     table = pd.DataFrame(rows)
-    table.to_csv(out / "candidates.csv", index=False)
+    write_atomic(out / "candidates.csv", lambda p: table.to_csv(p, index=False))
     params = {t.number: t.params for t in chosen_from}
     if cfg.mode == "rule":
         summary = choose_by_rule(cfg, table)
-        (out / "table.md").write_text(markdown_by_rule(cfg, summary, params))
+        write_atomic(out / "table.md", markdown_by_rule(cfg, summary, params))
     else:
         summary = choose(cfg, table)
-        (out / "table.md").write_text(markdown(cfg, summary, params))
+        write_atomic(out / "table.md", markdown(cfg, summary, params))
     best = summary.iloc[0]
     trial = next(t for t in chosen_from if t.number == best.trial)
     plot_curves(
@@ -371,12 +371,14 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     tcfg = validate(compose("train", trial.user_attrs["overrides"]))
     preset_dir = Path(cfg.preset_dir or Path(cfg.root) / "presets")
     note = (
-        f"Written by python -m bgap.recipe (sweep trial {trial.number}, checked on "
-        f"{len(cfg.check_seeds)} seeds x {cfg.check_episodes} validation episodes: "
+        f"Written by python -m bgap.recipe (study {study.study_name}, sweep trial "
+        f"{trial.number}, checked on {len(cfg.check_seeds)} seeds x {cfg.check_episodes} "
+        "validation episodes: "
         f"{best.collision_pct:.1f}% collisions at {best.avg_speed:.2f} m/s; idle "
         f"{best.idle_collision_pct:.1f}% at {best.idle_avg_speed:.2f} m/s)"
         if cfg.mode != "rule"
-        else f"Written by python -m bgap.recipe mode=rule (sweep trial {trial.number}, checked "
+        else f"Written by python -m bgap.recipe mode=rule (study {study.study_name}, sweep trial "
+        f"{trial.number}, checked "
         f"on {len(cfg.check_seeds)} seeds x {cfg.check_episodes} validation episodes: "
         f"behaviour-rich {best.per_100km:.2f} collisions per 100 km at {best.avg_speed:.2f} m/s "
         f"(rule-based ego {best.rule_per_100km:.2f} at {best.rule_avg_speed:.2f}); default in "
@@ -388,7 +390,11 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     for group in GROUPS:
         node = replace(getattr(tcfg, group), name=cfg.preset_name, converged=converged)
         paths[f"preset_{group}"] = write_preset(
-            node, group, preset_dir / group / f"{cfg.preset_name}.yaml", note
+            node,
+            group,
+            preset_dir / group / f"{cfg.preset_name}.yaml",
+            note,
+            f"(study {study.study_name}, ",
         )
     chosen = {
         "trial": trial.number,
@@ -397,7 +403,7 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         "check": {k: (None if isinstance(v, float) and np.isnan(v) else v)
                   for k, v in best.to_dict().items()},
     }  # fmt: skip
-    (out / "chosen.json").write_text(json.dumps(chosen, indent=1, default=float))
+    write_atomic(out / "chosen.json", json.dumps(chosen, indent=1, default=float))
     paths.update(
         candidates=out / "candidates.csv",
         table=out / "table.md",

@@ -22,7 +22,15 @@ from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
 from bgap.common.cluster import connected
 from bgap.common.config import app, load
-from bgap.common.runs import VOLATILE, as_before, digest, exclusive, model_file, save_run_metadata
+from bgap.common.runs import (
+    VOLATILE,
+    as_before,
+    digest,
+    exclusive,
+    model_file,
+    save_run_metadata,
+    write_atomic,
+)
 from bgap.common.vocab import POLICIES
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
@@ -90,7 +98,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     compared = summary  # what the idle flags read: the seed-level table with several seeds
     if len(seeds) > 1:
         compared = across = seed_summary(episodes)
-        across.to_csv(out / "seeds.csv", index=False)
+        write_atomic(out / "seeds.csv", lambda p: across.to_csv(p, index=False))
         plot_comparison(across, out / "comparison_seeds.png", f"{title}, {len(seeds)} seeds")
         print(f"\nacross {len(seeds)} training seeds (mean and 95% interval over seeds):")
         print(format_table(across))

@@ -40,7 +40,7 @@ from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import VOLATILE, as_before, digest
+from bgap.common.runs import VOLATILE, as_before, digest, write_atomic
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
@@ -361,7 +361,7 @@ def write_outputs(
             for t in done
         ]
     )
-    table.to_csv(out / "trials.csv", index=False)
+    write_atomic(out / "trials.csv", lambda p: table.to_csv(p, index=False))
     chosen = chosen_trial(study, cfg)
     paths = {"trials": out / "trials.csv"}
     fig, ax = plt.subplots(figsize=(5, 3.6))
@@ -370,7 +370,7 @@ def write_outputs(
     if cfg.mode == "multi":
         front = {t.number for t in study.best_trials}
         table["pareto"] = table.trial.isin(front)
-        table[table.pareto].to_csv(out / "pareto.csv", index=False)
+        write_atomic(out / "pareto.csv", lambda p: table[table.pareto].to_csv(p, index=False))
         p = table[table.pareto].sort_values("avg_speed")
         ax.plot(p.avg_speed, p.collision_pct, "o-", color="tab:red", label="Pareto front")
         paths["pareto"] = out / "pareto.csv"
@@ -407,7 +407,7 @@ def write_outputs(
     ax.set_title(f"{cfg.sweep} sweep ({cfg.mode}), {cfg.env.name}")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "pareto.png", dpi=120)
+    write_atomic(out / "pareto.png", lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
     paths["plot"] = out / "pareto.png"
     if cfg.write_preset:
@@ -433,6 +433,7 @@ def write_tuned(
     tcfg = validate(compose("train", [*trial.user_attrs["overrides"]]))
     note = (
         f"Written by python -m bgap.sweep sweep={cfg.sweep} mode={cfg.mode} "
+        f"(study {study.study_name}) "
         f"(trial {trial.number}: {json.dumps(trial.user_attrs.get('collision_pct'))}% "
         f"collisions, {trial.user_attrs.get('avg_speed', float('nan')):.2f} m/s)"
     )
@@ -440,7 +441,7 @@ def write_tuned(
     for group in groups:
         path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
         node = replace(getattr(tcfg, group), name=path.stem, converged=converged)
-        paths[group] = write_preset(node, group, path, note)
+        paths[group] = write_preset(node, group, path, note, f"(study {study.study_name})")
     return paths
 
 

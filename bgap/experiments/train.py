@@ -286,6 +286,12 @@ def main(dcfg: DictConfig) -> None:
                 f"resume=true: nothing to resume at {where[0]} (no such folder); check "
                 "run_dir, or drop resume=true to start a new training"
             )
+        saved = ("state.pkl", "model.zip")  # a checkpoint, or a finished training
+        if not any(any(d.rglob(name)) for d in where if d.exists() for name in saved):
+            raise ConfigError(
+                f"resume=true: nothing to resume at {where[0]} (no checkpoint was written "
+                "there yet); drop resume=true to start the training anew"
+            )
     if cfg.learner == "batched":
         dirs = train_batched(cfgs)
     else:

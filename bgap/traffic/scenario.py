@@ -52,6 +52,10 @@ class EnvConfig:
             "must be >= 1 (the ego's row)",
         )
         check(self.lanes_count >= 1, "env.lanes_count", self.lanes_count, "must be >= 1")
+        speeds = self.ego_speeds
+        increasing = all(a < b for a, b in zip(speeds, speeds[1:], strict=False))
+        check(len(speeds) >= 1 and speeds[0] > 0 and increasing, "env.ego_speeds", speeds,
+              "must be positive target speeds in increasing order")  # fmt: skip
         check(self.duration > 0, "env.duration", self.duration, "must be positive")
         check(self.policy_frequency >= 1, "env.policy_frequency", self.policy_frequency, ">= 1")
         check(
@@ -87,9 +91,8 @@ class RewardConfig:
     refuse it unless ``reward.converged=true`` says it is used knowingly."""
 
     def __post_init__(self) -> None:
-        lo, hi = self.speed_range
         check(
-            len(self.speed_range) == 2 and lo < hi,
+            len(self.speed_range) == 2 and self.speed_range[0] < self.speed_range[1],
             "reward.speed_range",
             self.speed_range,
             "must be [low, high] with low < high",

@@ -37,7 +37,7 @@ from bgap.cmetric.truths import broken_truths
 from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import VOLATILE, digest, save_run_metadata
+from bgap.common.runs import VOLATILE, digest, save_run_metadata, write_atomic
 from bgap.common.studies import (
     open_storage,
     plot_convergence,
@@ -106,7 +106,7 @@ def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.D
             scores[(preset, part.dataset, part.part)] = r.pop("scores")
             rows.append({"preset": preset, **r})
     table = pd.DataFrame(rows)
-    table.to_csv(out / "auc.csv", index=False)
+    write_atomic(out / "auc.csv", lambda p: table.to_csv(p, index=False))
     wide = table.pivot_table(index=["dataset", "part"], columns="preset", values="auc")
     wide = wide[list(presets)].reset_index()
     flagged = table[table.preset == "tuned"].set_index(["dataset", "part"]).flagged
@@ -132,7 +132,7 @@ def report(cfg: CMetricSearchConfig, study, parts, tuned: CMetricConfig) -> pd.D
         chosen.to_markdown(),
         "",
     ]
-    (out / "report.md").write_text("\n".join(lines))
+    write_atomic(out / "report.md", "\n".join(lines))
     _plot_validation(parts, list(presets), scores, out)
     plot_convergence(study, out / "convergence.png", "worst search-part AUC")
     return table
@@ -177,7 +177,7 @@ def _plot_validation(parts, presets: list[str], scores: dict, out: Path) -> None
             fontsize=9,
         )
         fig.tight_layout()
-        fig.savefig(out / f"{kind}.png", dpi=110)
+        write_atomic(out / f"{kind}.png", lambda p, fig=fig: fig.savefig(p, dpi=110))
         plt.close(fig)
 
 
@@ -208,6 +208,7 @@ def run(cfg: CMetricSearchConfig, dcfg: Any, progress: bool = True) -> dict[str,
         f"CMetric parameters tuned by python -m bgap.cmetric.search (trial "
         f"{study.best_trial.number} of {len(study.trials)}, worst search AUC "
         f"{study.best_value:.3f}); report: {out / 'report.md'}",
+        f"report: {out / 'report.md'}",
     )
     print(f"report: {out / 'report.md'}")
     print(f"preset: {preset} (use it with: {selection_hint('cmetric', preset)})")
