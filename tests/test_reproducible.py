@@ -14,15 +14,11 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 RERUNNING = {
-    "train@mix50-dense", "train@mix100-sparse", "train@mix100-dense",
-    *(f"evaluate@{arm}" for arm in ("mix0", "mix50", "mix100")),
-    "figures",
     *(f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")),
 }  # fmt: skip
-"""Stages whose committed lock predates code that changes what they compute, being rerun:
-the study's retraining with the sum-tree sampler and its evaluation per arm (issue 38);
-and stages not run yet: issue 32's recipe per learner. Each must still be stale (a rerun
-stage leaves this set in the same commit); no other stage may be."""
+"""Stages whose committed lock predates code that changes what they compute, being rerun,
+or not run yet: issue 32's recipe per learner. Each must still be stale (a rerun stage
+leaves this set in the same commit); no other stage may be."""
 
 
 def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_path):
