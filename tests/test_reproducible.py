@@ -15,8 +15,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 DENSITIES = ("sparse", "dense")
 RERUNNING = {
-    "train@mix0-dense", *(f"train@{arm}-{d}" for arm in ("mix50", "mix100") for d in DENSITIES),
-    *(f"evaluate@{arm}" for arm in ("mix0", "mix50", "mix100")),
+    *(f"train@{arm}-{d}" for arm in ("mix50", "mix100") for d in DENSITIES),
+    *(f"evaluate@{arm}" for arm in ("mix50", "mix100")),
     "figures",
     *(f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")),
 }  # fmt: skip
