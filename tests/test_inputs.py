@@ -493,3 +493,18 @@ def test_a_preset_is_rewritten_only_by_the_run_that_wrote_it(tmp_path):
     with pytest.raises(ConfigError, match="mine.yaml holds a preset this run did not write"):
         write_preset(RewardConfig(), "reward", mine, "sweep (study a)", "(study a)")
     assert mine.read_text() == "collision: -9\n"
+
+
+@pytest.mark.parametrize(
+    "name,default", [("parity", "outputs/parity"), ("figures", "outputs/figures")]
+)
+def test_argparse_commands_write_under_outputs_by_default(name, default, monkeypatch, capsys):
+    """Run from the repository root, their default output is never the committed results/
+    (only the pipeline's stages write there, with an explicit --out)."""
+    import importlib
+
+    monkeypatch.setattr(sys, "argv", [f"bgap.{name}", "--help"])
+    with pytest.raises(SystemExit) as stop:
+        importlib.import_module(f"bgap.{name}").main()
+    shown = " ".join(capsys.readouterr().out.split())  # argparse wraps the help text
+    assert stop.value.code == 0 and f"(default: {default})" in shown, shown
