@@ -15,8 +15,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 DENSITIES = ("sparse", "dense")
 RERUNNING = {
-    "train@mix50-dense", *(f"train@mix100-{d}" for d in DENSITIES),
-    *(f"evaluate@{arm}" for arm in ("mix50", "mix100")),
+    *(f"train@mix100-{d}" for d in DENSITIES),
+    "evaluate@mix100",
     "figures",
     *(f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")),
 }  # fmt: skip
