@@ -13,9 +13,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-DENSITIES = ("sparse", "dense")
 RERUNNING = {
-    *(f"train@mix100-{d}" for d in DENSITIES),
+    "train@mix100-dense",
     "evaluate@mix100",
     "figures",
     *(f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")),
