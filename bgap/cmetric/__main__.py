@@ -75,9 +75,9 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
     )
     out = Path(cfg.out) if as_file else folder / f"{source.stem}_cmetric.csv"
     stem = out.with_suffix("")
-    written = [out, Path(f"{stem}_windows.parquet"), Path(f"{stem}_centrality.png")]
-    if as_file:
-        written.append(Path(f"{stem}_config.yaml"))
+    windows, figure = Path(f"{stem}_windows.parquet"), Path(f"{stem}_centrality.png")
+    settings = Path(f"{stem}_config.yaml")  # beside a file output; a folder has config.yaml
+    written = [out, windows, figure, *([settings] if as_file else [])]
     for path in written:
         if path.resolve() == source.resolve():
             raise ConfigError(
@@ -99,16 +99,16 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
             write_atomic(out, lambda p: result.vehicles.to_parquet(p, index=False))
         else:
             write_atomic(out, result.vehicles.to_csv(index=False))
-        write_atomic(written[1], lambda p: result.windows.to_parquet(p, index=False))
+        write_atomic(windows, lambda p: result.windows.to_parquet(p, index=False))
         if as_file:
-            write_atomic(written[3], OmegaConf.to_yaml(dcfg, resolve=True))
+            write_atomic(settings, OmegaConf.to_yaml(dcfg, resolve=True))
         vehicles = result.vehicles
         chosen = list(cfg.plot_vehicles)
         if not chosen:
             first = vehicles[vehicles.episode == vehicles.episode.iloc[0]]
             ranked = first.sort_values("aggressiveness").vehicle_id.tolist()
             chosen = sorted(set(ranked[-2:] + ranked[:2]))
-        plot_centrality(result, chosen, written[2])
+        plot_centrality(result, chosen, figure)
     flagged = int(vehicles.flagged.sum())
     print(f"scored {len(vehicles)} vehicles ({flagged} flagged: no evidence) -> {out}")
     if "label" in vehicles:
