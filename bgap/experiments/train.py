@@ -263,10 +263,15 @@ def _train_task(cfg: ExperimentConfig, packed: bytes, storage: str | None) -> by
     """On a node: the shipped run folder trained to the end (resumed from its checkpoint, or
     from one a lost attempt left in ``storage``), sent back whole."""
     with task_folder(storage) as base:
-        work = base / f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
+        work = base / _task_folder_name(cfg)
         ship_in(packed, work)
         train(replace(cfg, run_dir=str(work), resume=True, cluster=ClusterConfig()), False)
         return pack(work)
+
+
+def _task_folder_name(cfg: ExperimentConfig) -> str:
+    """The folder in ``cluster.storage`` where a training's Ray task keeps its checkpoints."""
+    return f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
 
 
 def _train_worker(cfg: ExperimentConfig, held: list[Path]) -> Path:
@@ -281,6 +286,8 @@ def main(dcfg: DictConfig) -> None:
     cfgs = member_configs(cfg)
     if cfg.resume:  # a user's resume=true with nothing to resume is a typo, not a new run
         where = [Path(cfg.run_dir)] if cfg.run_dir else [run_dir_for(c) for c in cfgs]
+        if cfg.cluster.address and cfg.cluster.storage:  # where Ray tasks keep checkpoints
+            where += [Path(cfg.cluster.storage) / _task_folder_name(c) for c in cfgs]
         if not any(d.exists() for d in where):
             raise ConfigError(
                 f"resume=true: nothing to resume at {where[0]} (no such folder); check "
