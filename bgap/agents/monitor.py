@@ -32,7 +32,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import rollout
 from bgap.common.plotting import pyplot
-from bgap.common.runs import BEST_MODEL, write_atomic
+from bgap.common.runs import BEST_MODEL, CHECKPOINT_STATE, write_atomic
 from bgap.sim.rollout import EpisodeStats
 
 INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
@@ -62,7 +62,7 @@ def recover_checkpoint(run_dir: Path) -> None:
     final, new, old = _checkpoint_folders(run_dir)
     if not final.exists():
         for candidate in (new, old):
-            if (candidate / "state.pkl").exists():
+            if (candidate / CHECKPOINT_STATE).exists():
                 os.replace(candidate, final)
                 break
     for leftover in (new, old):
@@ -196,7 +196,7 @@ class TrainingMonitor:
             write(new / name)
         state = {"monitor": self.state, "stats": self.stats.__dict__, "recent": self.recent}
         # whole or absent: its presence marks the folder complete (recover_checkpoint)
-        write_atomic(new / "state.pkl", pickle.dumps({**state, **extra}))
+        write_atomic(new / CHECKPOINT_STATE, pickle.dumps({**state, **extra}))
         shutil.rmtree(old, ignore_errors=True)
         if final.exists():
             os.replace(final, old)

@@ -298,13 +298,9 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
             stacklevel=2,
         )
     targets = ", ".join(f"{k} {v}" for k, v in asdict(cfg.calibrate.targets).items())
-    write_preset(
-        behavior,
-        "behavior",
-        preset_file(cfg),
-        f"Written by python -m bgap.calibrate (targets: {targets}); report: {report_dir(cfg)}",
-        f"report: {report_dir(cfg)}",
-    )
+    owner = f"report: {report_dir(cfg)}"
+    note = f"Written by python -m bgap.calibrate (targets: {targets}); {owner}"
+    write_preset(behavior, "behavior", preset_file(cfg), note, owner)
     return write_outputs(cfg, studies, behavior, stats)
 
 

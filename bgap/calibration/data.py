@@ -445,14 +445,9 @@ def calibrate_to_data(
             f"the target's noise band ({listed}): the preset is marked converged: false",
             stacklevel=2,
         )
-    write_preset(
-        calibrated,
-        "behavior",
-        preset,
-        f"Written by python -m bgap.calibrate calibrate.target={cfg.calibrate.target}; "
-        f"report: {report}",
-        f"report: {report}",
-    )
+    owner = f"report: {report}"
+    note = f"Written by python -m bgap.calibrate calibrate.target={cfg.calibrate.target}; {owner}"
+    write_preset(calibrated, "behavior", preset, note, owner)
     points = cfg.calibrate.sensitivity_points
     sensitive = sensitivity(cfg, observed, study, reference) if points else None
     env, mix = simulated_scene(cfg, observed)

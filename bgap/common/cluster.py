@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
-from bgap.common.runs import unpack
+from bgap.common.runs import CHECKPOINT_STATE, unpack
 
 ENV_ADDRESS, ENV_STORAGE = "BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE"
 """Environment variables that give ``cluster.address`` and ``cluster.storage`` when a command
@@ -101,7 +101,7 @@ def task_folder(storage: str | None) -> Iterator[Path]:
 def ship_in(packed: bytes, folder: Path) -> None:
     """A run folder shipped to a node (:func:`bgap.common.runs.pack`) unpacked into
     ``folder``, unless a lost attempt left a checkpoint there to resume from."""
-    if not (folder / "checkpoints" / "state.pkl").exists():
+    if not (folder / "checkpoints" / CHECKPOINT_STATE).exists():
         unpack(packed, folder)
 
 

@@ -33,6 +33,10 @@ T = TypeVar("T")
 LOCK = ".lock"
 """The advisory lock file of a folder a command is writing (:func:`exclusive`)."""
 
+CHECKPOINT_STATE = "state.pkl"
+"""A training checkpoint's counters and states (:mod:`bgap.agents.monitor`), written last:
+a checkpoint folder that holds it is whole."""
+
 VOLATILE = ("resume", "workers", "root", "out", "run_dir", "cluster")
 """Settings that do not change what a folder holds (where it is, how fast it is made)."""
 

@@ -27,9 +27,10 @@ def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
     """Record (SUMO) or convert (highD, NGSIM) the dataset ``cfg.source`` names into
     ``cfg.out``."""
     out = Path(cfg.out or f"outputs/datasets/{cfg.source}")
+    if cfg.source == "sumo":
+        sumo_home()  # a missing optional extra fails before any folder is made
     with exclusive(out):  # a second command writing the same folder is refused
         if cfg.source == "sumo":
-            sumo_home()  # a missing optional extra fails before any folder is made
             save_run_metadata(out, dcfg)
             with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
                 table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)

@@ -38,7 +38,7 @@ from bgap.common.cluster import (
     writable,
 )
 from bgap.common.errors import ConfigError, Interrupted, check
-from bgap.common.runs import digest, exclusive, pack, unpack, write_atomic
+from bgap.common.runs import CHECKPOINT_STATE, digest, exclusive, pack, unpack, write_atomic
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
@@ -303,7 +303,7 @@ class _Members:
         cfgs, dirs, e = self.cfgs, self.dirs, self.e
         states = [
             read_checkpoint(d / "checkpoints", lambda d=d: pickle.loads(
-                (d / "checkpoints" / "state.pkl").read_bytes()
+                (d / "checkpoints" / CHECKPOINT_STATE).read_bytes()
             )) if res else None
             for d, res in zip(dirs, resuming, strict=True)
         ]  # fmt: skip

@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 
 from bgap.common.cli import OneLineParser
-from bgap.common.runs import CONFIG
+from bgap.common.runs import CHECKPOINT_STATE, CONFIG
 
 ROOT = Path(__file__).resolve().parents[2]
 """The repository (this file is bgap/experiments/pipeline.py)."""
@@ -148,9 +148,6 @@ radii: [180.0, 30.0]
 """
 """The evaluation grid of a rehearsal: the tiny grid at both densities."""
 
-
-CHECKPOINT_STATE = "state.pkl"
-"""A training checkpoint's counters and states (bgap.agents.monitor), compared by content."""
 
 REHEARSED = ".rehearsed"
 """Marks a finished rehearsal in its folder: ``--work`` of an earlier run reuses it."""

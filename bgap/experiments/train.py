@@ -51,7 +51,7 @@ from bgap.common.cluster import (
 )
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
-from bgap.common.runs import exclusive, held_by_parent, pack, unpack, write_atomic
+from bgap.common.runs import CHECKPOINT_STATE, exclusive, held_by_parent, pack, unpack, write_atomic
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
@@ -132,7 +132,7 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
         eval_seed=cfg.val_seed,  # validation episodes, never the test ones
     )
     if resuming:
-        state = read_checkpoint(ckpt, lambda: pickle.loads((ckpt / "state.pkl").read_bytes()))
+        state = read_checkpoint(ckpt, lambda: pickle.loads((ckpt / CHECKPOINT_STATE).read_bytes()))
         venv = _vector_highway(env)
         exact = venv is not None and state["env"] is not None
         model = read_checkpoint(
@@ -293,7 +293,7 @@ def main(dcfg: DictConfig) -> None:
                 f"resume=true: nothing to resume at {where[0]} (no such folder); check "
                 "run_dir, or drop resume=true to start a new training"
             )
-        saved = ("state.pkl", "model.zip")  # a checkpoint, or a finished training
+        saved = (CHECKPOINT_STATE, "model.zip")  # a checkpoint, or a finished training
         if not any(any(d.rglob(name)) for d in where if d.exists() for name in saved):
             raise ConfigError(
                 f"resume=true: nothing to resume at {where[0]} (no checkpoint was written "

@@ -19,7 +19,14 @@ from bgap.agents.monitor import (
 from bgap.agents.observation import MODEL_ATTRIBUTE
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.common.errors import ConfigError
-from bgap.common.runs import VOLATILE, as_before, digest, read_or_refuse, save_run_metadata
+from bgap.common.runs import (
+    CHECKPOINT_STATE,
+    VOLATILE,
+    as_before,
+    digest,
+    read_or_refuse,
+    save_run_metadata,
+)
 from bgap.experiments.config import ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
@@ -160,7 +167,7 @@ def open_run_dir(cfg: ExperimentConfig, run_dir: Path | None = None) -> tuple[Pa
     save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT)
     if (run_dir / "model.zip").exists():
         return run_dir, "finished"  # also with resume=true, which bgap.run always passes
-    if (ckpt / "state.pkl").exists():
+    if (ckpt / CHECKPOINT_STATE).exists():
         if not cfg.resume:
             raise ConfigError(
                 f"{run_dir} holds an unfinished training: resume=true continues it (or "

@@ -201,15 +201,13 @@ def run(cfg: CMetricSearchConfig, dcfg: Any, progress: bool = True) -> dict[str,
     preset = Path(cfg.preset or out / "presets" / "cmetric" / "user_tuned.yaml")
     tuned = replace(tuned, name=preset.stem)
     report(cfg, study, parts, tuned)
-    write_preset(
-        tuned,
-        "cmetric",
-        preset,
+    owner = f"report: {out / 'report.md'}"
+    note = (
         f"CMetric parameters tuned by python -m bgap.cmetric.search (trial "
         f"{study.best_trial.number} of {len(study.trials)}, worst search AUC "
-        f"{study.best_value:.3f}); report: {out / 'report.md'}",
-        f"report: {out / 'report.md'}",
+        f"{study.best_value:.3f}); {owner}"
     )
+    write_preset(tuned, "cmetric", preset, note, owner)
     print(f"report: {out / 'report.md'}")
     print(f"preset: {preset} (use it with: {selection_hint('cmetric', preset)})")
     return {"out": out, "preset": preset}
