@@ -187,7 +187,8 @@ def test_known_parameters_are_recovered(tmp_path):
         name="known",
         **{c: DriverParams(**{**vars(getattr(paper, c)), **truth[c]}) for c in truth},
     )
-    write_preset(known, "behavior", tmp_path / "known.yaml", "the recovery test's truth")
+    truth_note = "the recovery test's truth"
+    write_preset(known, "behavior", tmp_path / "known.yaml", truth_note, truth_note)
     scene = replace(make_cfg("env=dense", "mix=0.5", "env.duration=30"), behavior=known)
     table = rollout(env_config(scene), "idle", range(500, 508), "vector", record=True)
     target = tmp_path / "known.parquet"
