@@ -94,6 +94,25 @@ def test_simulate_refuses_a_folder_of_a_users_files(tmp_path, monkeypatch, capsy
     assert sorted(p.name for p in user.iterdir()) == ["episodes.csv", "trajectories.parquet"]
 
 
+def test_a_users_lone_config_yaml_is_not_taken_for_an_interrupted_commands(
+    tmp_path, monkeypatch, capsys
+):
+    """A folder holding nothing but a user's own config.yaml (no command.txt: bgap writes
+    that first) is compared as settings and refused, its file byte-identical; a command.txt
+    left alone by a kill between bgap's two writes does not block a rerun."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "config.yaml").write_text("learning_rate: 0.001\nlayers: [64, 64]\n")
+    status, err = _command("simulate", ["out=mine", "episodes=1"], monkeypatch, capsys)
+    assert status == 2 and err.count("\n") == 1 and "mine" in err, err
+    assert (tmp_path / "mine" / "config.yaml").read_text().startswith("learning_rate: 0.001")
+    assert [p.name for p in (tmp_path / "mine").iterdir()] == ["config.yaml"]
+    (tmp_path / "killed").mkdir()
+    (tmp_path / "killed" / "command.txt").write_text("python -m bgap.simulate out=killed\n")
+    status, err = _command("simulate", ["out=killed", "episodes=1"], monkeypatch, capsys)
+    assert status == 0, err
+
+
 def test_an_interrupted_commands_metadata_does_not_block_a_rerun(tmp_path, monkeypatch, capsys):
     """Ctrl-C during bgap.simulate leaves config.yaml and command.txt only, and says so; a
     rerun with other settings then runs (nothing of a result would be lost)."""
@@ -133,6 +152,29 @@ def test_a_run_folder_being_trained_is_refused_naming_the_process(tmp_path, monk
         holder.kill()
         holder.wait()
     assert not (tmp_path / "run" / "config.yaml").exists()  # refused before writing
+
+
+def test_a_scores_file_being_written_is_refused_naming_the_process(tmp_path, monkeypatch, capsys):
+    """bgap.cmetric out=FILE: a second command writing the same scores file is refused in
+    one line naming the holder; one writing another file of that folder is not."""
+    monkeypatch.chdir(tmp_path)
+    _table(tmp_path / "runs.csv")
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import time; from bgap.common.runs import exclusive_file\n"
+         "with exclusive_file('s.csv'):\n    print('held', flush=True); time.sleep(60)"],
+        cwd=tmp_path, stdout=subprocess.PIPE, text=True, env=ENV,
+    )  # fmt: skip
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        status, err = _command("cmetric", ["input=runs.csv", "out=s.csv"], monkeypatch, capsys)
+        assert status == 2 and err.count("\n") == 1, err
+        assert f"is being written by process {holder.pid}" in err, err
+        assert _command("cmetric", ["input=runs.csv", "out=t.csv"], monkeypatch, capsys)[0] == 0
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not (tmp_path / "s.csv").exists()
+    assert not list(tmp_path.glob(".t.csv*"))  # the lock file goes with the lock
 
 
 def test_the_lock_is_released_and_leaves_no_file_nor_an_empty_folder_it_made(tmp_path):

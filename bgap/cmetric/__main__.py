@@ -28,7 +28,13 @@ from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.runs import exclusive, other_settings, save_run_metadata, write_atomic
+from bgap.common.runs import (
+    exclusive,
+    exclusive_file,
+    other_settings,
+    save_run_metadata,
+    write_atomic,
+)
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 
@@ -90,7 +96,8 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
         if folder is not None:
             held.enter_context(exclusive(folder))
             save_run_metadata(folder, dcfg)  # refuses a folder of other settings before scoring
-        else:
+        else:  # a second command writing the same scores file is refused
+            held.enter_context(exclusive_file(out))
             _refuse_other_scores(out, written, dcfg)
         result = score_trajectories(table, cfg.cmetric, fps=cfg.fps, progress=True)
         out.parent.mkdir(parents=True, exist_ok=True)

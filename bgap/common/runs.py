@@ -189,20 +189,35 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
                 "output folder (or delete that one)"
             )
     out.mkdir(parents=True, exist_ok=True)
-    write_atomic(stored_path, OmegaConf.to_yaml(conf, resolve=True))
+    # The command first: a config.yaml with no command.txt beside it is not bgap's.
     # orig_argv keeps "-m bgap.x"; argv[0] would be the module's file path.
     command = " ".join(shlex.quote(a) for a in ["python", *sys.orig_argv[1:]])
-    write_atomic(out / "command.txt", command + "\n")
+    write_atomic(out / COMMAND, command + "\n")
+    write_atomic(stored_path, OmegaConf.to_yaml(conf, resolve=True))
     return out
 
 
-METADATA = (CONFIG, "command.txt", LOCK)
+COMMAND = "command.txt"
+"""The command line a run folder's outputs came from (:func:`save_run_metadata`)."""
+
+METADATA = (CONFIG, COMMAND, LOCK)
 
 
 def only_metadata(folder: Path) -> bool:
     """Whether ``folder`` holds nothing but a command's metadata (an interrupted command's
-    before it wrote anything): another command may take it over, nothing is lost."""
-    return all(p.name in METADATA for p in folder.iterdir())
+    before it wrote anything): another command may take it over, nothing is lost. A lone
+    ``config.yaml`` is not that (bgap writes ``command.txt`` before it): it may be a user's."""
+    names = {p.name for p in folder.iterdir()}
+    return names <= set(METADATA) and COMMAND in names
+
+
+def _written_by_bgap(file: Path) -> bool:
+    """A ``command.txt`` that :func:`save_run_metadata` wrote (a kill before its
+    ``config.yaml`` leaves it alone in the folder)."""
+    try:
+        return file.name == COMMAND and file.read_text().startswith("python ")
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def refuse_foreign(folder: Path) -> None:
@@ -210,7 +225,11 @@ def refuse_foreign(folder: Path) -> None:
     beside them): they are the user's, and a command would overwrite them."""
     if not folder.is_dir() or (folder / CONFIG).exists():
         return
-    files = sorted(p.name for p in folder.iterdir() if p.is_file() and p.name != LOCK)
+    files = sorted(
+        p.name
+        for p in folder.iterdir()
+        if p.is_file() and p.name != LOCK and not _written_by_bgap(p)
+    )
     if files:
         shown = ", ".join(files[:3]) + (f" and {len(files) - 3} more" if len(files) > 3 else "")
         raise ConfigError(
@@ -259,23 +278,44 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
         return
     created = not folder.exists()
     folder.mkdir(parents=True, exist_ok=True)
-    handle = _lock(folder / LOCK, wait)
+    try:
+        with _holding(folder / LOCK, folder, wait):
+            _HELD[folder] = 1
+            yield
+    finally:
+        _HELD.pop(folder, None)
+        if created and not any(folder.iterdir()):  # refused before writing: leave no trace
+            folder.rmdir()
+
+
+@contextmanager
+def exclusive_file(path: str | Path) -> Iterator[None]:
+    """Hold an advisory lock on the output file ``path`` (and the side files named after
+    it) while this process writes them: ``.<name>.lock`` beside it, so that commands
+    writing other files of the same folder do not wait on each other. Another process
+    holding it: refused in one line naming that process."""
+    path = Path(path).resolve()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with _holding(path.with_name(f".{path.name}{LOCK}"), path, False):
+        yield
+
+
+@contextmanager
+def _holding(lock: Path, what: Path, wait: bool) -> Iterator[None]:
+    """The lock file ``lock`` held, naming this process, for writing ``what``."""
+    handle = _lock(lock, what, wait)
     try:
         handle.seek(0)
         handle.truncate()
         handle.write(f"process {os.getpid()} ({' '.join(sys.argv[:1] + sys.argv[1:3])})\n")
         handle.flush()
-        _HELD[folder] = 1
         yield
     finally:
-        _HELD.pop(folder, None)
         # removed while still held, so that no lock file is left in a finished folder (a
         # DVC output): a process waiting on this file sees it gone and locks the new one
-        (folder / LOCK).unlink(missing_ok=True)
+        lock.unlink(missing_ok=True)
         fcntl.flock(handle, fcntl.LOCK_UN)
         handle.close()
-        if created and not any(folder.iterdir()):  # refused before writing: leave no trace
-            folder.rmdir()
 
 
 def pack(folder: Path) -> bytes:
@@ -305,7 +345,7 @@ def held_by_parent(folders: Iterable[str | Path]) -> None:
         _HELD.setdefault(Path(folder).resolve(), 1)
 
 
-def _lock(path: Path, wait: bool) -> Any:
+def _lock(path: Path, what: Path, wait: bool) -> Any:
     """The lock file at ``path``, opened and locked; retried when the holder removed it
     meanwhile (the locked file must still be the one at the path)."""
     while True:
@@ -317,8 +357,8 @@ def _lock(path: Path, wait: bool) -> Any:
             holder = handle.read().strip() or "another process"
             handle.close()
             raise ConfigError(
-                f"{path.parent} is being written by {holder}; wait for it to finish or "
-                "choose another output folder"
+                f"{what} is being written by {holder}; wait for it to finish or choose "
+                "another output"
             ) from None
         try:
             same = os.fstat(handle.fileno()).st_ino == os.stat(path).st_ino
