@@ -10,6 +10,8 @@ import re
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -136,21 +138,28 @@ def test_an_interrupted_commands_metadata_does_not_block_a_rerun(tmp_path, monke
     assert (tmp_path / "sim" / "trajectories.parquet").exists()
 
 
-def test_a_run_folder_being_trained_is_refused_naming_the_process(tmp_path, monkeypatch, capsys):
-    monkeypatch.chdir(tmp_path)
+@contextmanager
+def _held_by_another_process(lock: str, target: str, cwd: Path) -> Iterator[int]:
+    """``bgap.common.runs.<lock>(target)`` held by a child process; yields its pid."""
     holder = subprocess.Popen(
-        [sys.executable, "-c", "import time; from bgap.common.runs import exclusive\n"
-         "with exclusive('run'):\n    print('held', flush=True); time.sleep(60)"],
-        cwd=tmp_path, stdout=subprocess.PIPE, text=True, env=ENV,
+        [sys.executable, "-c", f"import time; from bgap.common.runs import {lock}\n"
+         f"with {lock}({target!r}):\n    print('held', flush=True); time.sleep(60)"],
+        cwd=cwd, stdout=subprocess.PIPE, text=True, env=ENV,
     )  # fmt: skip
     try:
         assert holder.stdout.readline().strip() == "held"
-        status, err = _command("train", ["profile=tiny", "run_dir=run"], monkeypatch, capsys)
-        assert status == 2 and err.count("\n") == 1, err
-        assert f"is being written by process {holder.pid}" in err, err
+        yield holder.pid
     finally:
         holder.kill()
         holder.wait()
+
+
+def test_a_run_folder_being_trained_is_refused_naming_the_process(tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    with _held_by_another_process("exclusive", "run", tmp_path) as pid:
+        status, err = _command("train", ["profile=tiny", "run_dir=run"], monkeypatch, capsys)
+        assert status == 2 and err.count("\n") == 1, err
+        assert f"is being written by process {pid}" in err, err
     assert not (tmp_path / "run" / "config.yaml").exists()  # refused before writing
 
 
@@ -159,20 +168,11 @@ def test_a_scores_file_being_written_is_refused_naming_the_process(tmp_path, mon
     one line naming the holder; one writing another file of that folder is not."""
     monkeypatch.chdir(tmp_path)
     _table(tmp_path / "runs.csv")
-    holder = subprocess.Popen(
-        [sys.executable, "-c", "import time; from bgap.common.runs import exclusive_file\n"
-         "with exclusive_file('s.csv'):\n    print('held', flush=True); time.sleep(60)"],
-        cwd=tmp_path, stdout=subprocess.PIPE, text=True, env=ENV,
-    )  # fmt: skip
-    try:
-        assert holder.stdout.readline().strip() == "held"
+    with _held_by_another_process("exclusive_file", "s.csv", tmp_path) as pid:
         status, err = _command("cmetric", ["input=runs.csv", "out=s.csv"], monkeypatch, capsys)
         assert status == 2 and err.count("\n") == 1, err
-        assert f"is being written by process {holder.pid}" in err, err
+        assert f"is being written by process {pid}" in err, err
         assert _command("cmetric", ["input=runs.csv", "out=t.csv"], monkeypatch, capsys)[0] == 0
-    finally:
-        holder.kill()
-        holder.wait()
     assert not (tmp_path / "s.csv").exists()
     assert not list(tmp_path.glob(".t.csv*"))  # the lock file goes with the lock
 
