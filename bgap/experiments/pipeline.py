@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from bgap.common.cli import OneLineParser
+from bgap.common.cli import OneLineParser, run
 from bgap.common.runs import CHECKPOINT_STATE, CONFIG
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -421,6 +421,22 @@ def relock(
     return differs
 
 
+def _trials(args: Any) -> None:
+    """``bgap.pipeline trials save|restore``: bgap.experiments.trial_log, one line each."""
+    from bgap.common.errors import ConfigError
+    from bgap.experiments import trial_log
+
+    storage = trial_log.storage_url(args.storage)
+    if args.action == "save":
+        if not args.study:
+            raise ConfigError("trials save needs --study NAME (the search's study name)")
+        n = trial_log.save(storage, args.study, args.log)
+        print(f"{n} finished trials of {args.study} -> {args.log}")
+    else:
+        n = trial_log.restore(storage, args.log)
+        print(f"{n} trials from {args.log} -> {storage}; rerun the search's command to continue")
+
+
 def main(argv: list[str] | None = None) -> None:
 
     parser = OneLineParser(prog="bgap.pipeline", description=__doc__.split("\n\n")[0])
@@ -440,7 +456,19 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="rehearse the base twice and compare only what reproduces (the recipe's sweep)",
     )
+    trials = sub.add_parser(
+        "trials", help="keep a search's finished trials in git, or put them back in a study"
+    )
+    trials.add_argument("action", choices=("save", "restore"))
+    trials.add_argument("log", type=Path, help="the trial log (JSON) to write or read")
+    trials.add_argument(
+        "--storage", required=True, help="the study's optuna.db (or an Optuna storage URL)"
+    )
+    trials.add_argument("--study", help="the study's name (save; restore reads it from the log)")
     args = parser.parse_args(argv)
+    if args.command == "trials":
+        run("bgap.pipeline", lambda: _trials(args), "the trial log is written whole or not")
+        return
     if args.command == "relock":
         differs = relock(args.stages, args.base, args.work, unreproducible=args.unreproducible)
         bad = {s: f for s, f in differs.items() if f}

@@ -1,0 +1,114 @@
+"""A study's finished trials as a small JSON file that git keeps, and back into a study.
+
+An Optuna study lives in a database (``optuna.db`` under the run's root) that does not
+outlive its machine and that the project does not commit. A search longer than a working
+session (issue 32's recipe per learner: hours each) stays resumable from git by committing
+its finished trials (parameters with their distributions, values, state, attributes,
+intermediate values): :func:`save` writes them, :func:`restore` adds them to the same study
+in a fresh database, and the search's own command then continues from there. A trial still
+running when saved is not kept: it is played again. Hand-written rather than Optuna's
+journal storage, which logs every operation of every trial (a file that grows with each
+write, and is the database itself, not a record of results).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import optuna
+from optuna.distributions import distribution_to_json, json_to_distribution
+from optuna.trial import TrialState
+
+from bgap.common.errors import ConfigError
+from bgap.common.runs import write_atomic
+
+KEPT = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
+"""The trial states a log keeps: those that will not change any more."""
+
+
+def storage_url(storage: str | Path) -> str:
+    """An Optuna storage URL, or the path of an SQLite file (``optuna.db``) made into one."""
+    storage = str(storage)
+    return storage if "://" in storage else f"sqlite:///{Path(storage).resolve()}"
+
+
+def _load(storage: str, study: str) -> optuna.Study:
+    path = storage.removeprefix("sqlite:///")
+    if storage.startswith("sqlite:///") and not Path(path).is_file():
+        raise ConfigError(f"{path} does not exist; give the search's optuna.db")
+    try:
+        return optuna.load_study(study_name=study, storage=storage)
+    except KeyError:
+        raise ConfigError(
+            f"{storage} holds no study {study!r}; check --storage and --study "
+            "(optuna-dashboard or optuna.get_all_study_names list them)"
+        ) from None
+
+
+def _trial(t: optuna.trial.FrozenTrial) -> dict[str, Any]:
+    return {
+        "number": t.number,
+        "state": t.state.name,
+        "params": t.params,
+        "distributions": {k: distribution_to_json(d) for k, d in t.distributions.items()},
+        "values": t.values,
+        "user_attrs": t.user_attrs,
+        "system_attrs": t.system_attrs,
+        "intermediate_values": {str(k): v for k, v in t.intermediate_values.items()},
+    }
+
+
+def save(storage: str, study: str, path: str | Path) -> int:
+    """Write the finished trials of ``study`` in ``storage`` to ``path`` (JSON, whole or not
+    at all); returns how many."""
+    s = _load(storage, study)
+    trials = [_trial(t) for t in s.get_trials(deepcopy=False, states=KEPT)]
+    log = {
+        "study": study,
+        "directions": [d.name for d in s.directions],
+        "user_attrs": s.user_attrs,
+        "trials": trials,
+    }
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_atomic(Path(path), json.dumps(log, indent=1, sort_keys=True) + "\n")
+    return len(trials)
+
+
+def restore(storage: str, path: str | Path) -> int:
+    """Add the trials logged in ``path`` to their study in ``storage`` (created with the
+    logged directions), in their logged order; returns how many. A study that already
+    holds trials is refused: the log is for a database the machine lost."""
+    try:
+        log = json.loads(Path(path).read_text())
+        name, trials = log["study"], log["trials"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ConfigError(f"{path} is not a trial log bgap.pipeline wrote ({err})") from None
+    s = optuna.create_study(
+        study_name=name,
+        storage=storage,
+        directions=[d.lower() for d in log["directions"]],
+        load_if_exists=True,
+    )
+    if s.trials:
+        raise ConfigError(
+            f"study {name!r} in {storage} already holds {len(s.trials)} trials; restore into "
+            "a new database (the log is for one the machine lost)"
+        )
+    for key, value in log.get("user_attrs", {}).items():
+        s.set_user_attr(key, value)
+    for t in sorted(trials, key=lambda t: t["number"]):
+        state = TrialState[t["state"]]
+        s.add_trial(
+            optuna.trial.create_trial(
+                state=state,
+                params=t["params"],
+                distributions={k: json_to_distribution(d) for k, d in t["distributions"].items()},
+                values=t["values"],  # a pruned trial keeps its last reported value
+                user_attrs=t["user_attrs"],
+                system_attrs=t["system_attrs"],
+                intermediate_values={int(k): v for k, v in t["intermediate_values"].items()},
+            )
+        )
+    return len(trials)
