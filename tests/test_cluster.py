@@ -211,7 +211,9 @@ def test_ctrl_c_on_the_driver_cancels_the_tasks_and_says_what_was_kept(tmp_path)
     from bgap.common.cli import INTERRUPTED
 
     storage = tmp_path / "storage"
-    cmd = [sys.executable, "-m", "bgap.train", "profile=tiny", "profile.train_steps=3000",
+    # long enough that the Ctrl-C, sent at the first checkpoint, always finds it running
+    # (at 3,000 steps an idle machine finished first)
+    cmd = [sys.executable, "-m", "bgap.train", "profile=tiny", "profile.train_steps=20000",
            "profile.checkpoint_every=300", "env=sparse", "backend=vector",
            f"run_dir={tmp_path}/run", "cluster.address=local",
            f"cluster.storage={storage}"]  # fmt: skip
