@@ -72,6 +72,18 @@ def test_a_running_trial_is_not_kept(tmp_path):
     assert trial_log.save(storage, "learner-dqn", tmp_path / "log.json") == 2
 
 
+def test_a_log_is_restored_on_a_new_machine_whose_root_is_not_made_yet(tmp_path, monkeypatch):
+    """The documented command, from a fresh clone: --storage outputs/.../optuna.db, whose
+    folders do not exist yet."""
+    storage = _searched(tmp_path, trials=2)
+    trial_log.save(storage, "learner-dqn", tmp_path / "log.json")
+    monkeypatch.chdir(tmp_path)
+    db = "outputs/pipeline/sweeps/optuna.db"
+    main(["trials", "restore", "log.json", "--storage", db])
+    restored = optuna.load_study(study_name="learner-dqn", storage=f"sqlite:///{tmp_path / db}")
+    assert len(restored.trials) == 2
+
+
 def test_a_study_that_holds_trials_is_not_restored_into(tmp_path):
     storage = _searched(tmp_path, trials=2)
     trial_log.save(storage, "learner-dqn", tmp_path / "log.json")
@@ -88,6 +100,10 @@ def test_a_study_that_holds_trials_is_not_restored_into(tmp_path):
         (["save", "log.json", "--storage", "lost.db"], "needs --study"),
         (["restore", "lost.db", "--storage", "new.db"], "is not a trial log"),
         (["keep", "log.json", "--storage", "lost.db"], "invalid choice"),
+        (
+            ["save", "log.json", "--storage", "postgresql://x@127.0.0.1:1/x", "--study", "x"],
+            "--storage='postgresql://x@127.0.0.1:1/x' cannot be opened",
+        ),  # fmt: skip
     ],
 )
 def test_bad_arguments_get_one_line(tmp_path, monkeypatch, capsys, args, says):

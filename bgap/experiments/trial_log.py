@@ -23,23 +23,30 @@ from optuna.trial import TrialState
 
 from bgap.common.errors import ConfigError
 from bgap.common.runs import write_atomic
+from bgap.common.studies import open_storage
 
 KEPT = (TrialState.COMPLETE, TrialState.PRUNED, TrialState.FAIL)
 """The trial states a log keeps: those that will not change any more."""
 
 
 def storage_url(storage: str | Path) -> str:
-    """An Optuna storage URL, or the path of an SQLite file (``optuna.db``) made into one."""
+    """A storage URL as the commands take them (:mod:`bgap.common.studies`), or the path of
+    an SQLite file (``optuna.db``) made into one."""
     storage = str(storage)
-    return storage if "://" in storage else f"sqlite:///{Path(storage).resolve()}"
+    url = "://" in storage or storage.startswith("journal:")
+    return storage if url else f"sqlite:///{Path(storage).resolve()}"
+
+
+def _sqlite_file(storage: str) -> Path | None:
+    return Path(storage.removeprefix("sqlite:///")) if storage.startswith("sqlite:///") else None
 
 
 def _load(storage: str, study: str) -> optuna.Study:
-    path = storage.removeprefix("sqlite:///")
-    if storage.startswith("sqlite:///") and not Path(path).is_file():
-        raise ConfigError(f"{path} does not exist; give the search's optuna.db")
+    db = _sqlite_file(storage)
+    if db is not None and not db.is_file():
+        raise ConfigError(f"{db} does not exist; give the search's optuna.db")
     try:
-        return optuna.load_study(study_name=study, storage=storage)
+        return optuna.load_study(study_name=study, storage=open_storage(storage, "--storage"))
     except KeyError:
         raise ConfigError(
             f"{storage} holds no study {study!r}; check --storage and --study "
@@ -85,9 +92,12 @@ def restore(storage: str, path: str | Path) -> int:
         name, trials = log["study"], log["trials"]
     except (OSError, ValueError, KeyError, TypeError) as err:
         raise ConfigError(f"{path} is not a trial log bgap.pipeline wrote ({err})") from None
+    db = _sqlite_file(storage)
+    if db is not None:  # a new machine: the search's root is not made yet
+        db.parent.mkdir(parents=True, exist_ok=True)
     s = optuna.create_study(
         study_name=name,
-        storage=storage,
+        storage=open_storage(storage, "--storage"),
         directions=[d.lower() for d in log["directions"]],
         load_if_exists=True,
     )
