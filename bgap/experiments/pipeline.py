@@ -28,6 +28,7 @@ import numpy as np
 import yaml
 
 from bgap.common.cli import OneLineParser, run
+from bgap.common.errors import ConfigError
 from bgap.common.runs import CHECKPOINT_STATE, CONFIG
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -423,8 +424,7 @@ def relock(
 
 def _trials(args: Any) -> None:
     """``bgap.pipeline trials save|restore``: bgap.experiments.trial_log, one line each."""
-    from bgap.common.errors import ConfigError
-    from bgap.experiments import trial_log
+    from bgap.experiments import trial_log  # optuna, which deps and relock do not need
 
     storage = trial_log.storage_url(args.storage)
     if args.action == "save":
