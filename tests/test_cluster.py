@@ -3,6 +3,7 @@ Ray is not installed (it is an optional extra: pip install -e ".[cluster]")."""
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -191,6 +192,24 @@ def test_a_sweep_worker_killed_mid_trial_loses_no_trial(tmp_path, nodes, postgre
     assert TrialState.FAIL in states and TrialState.RUNNING not in states
     runs = [t.user_attrs["run_dir"] for t in study.trials if t.state != TrialState.FAIL]
     assert len(set(runs)) == len(runs)
+
+
+def test_a_sweep_sent_to_the_cluster_by_the_environment_runs_its_workers_once(tmp_path):
+    """``BGAP_CLUSTER_ADDRESS=local`` (how ``dvc repro`` sends a stage to a cluster): the two
+    workers run the study's trials themselves. They used to read the address back and send
+    the sweep to the cluster again, workers starting workers until memory ran out."""
+    import optuna
+
+    cmd = [sys.executable, "-m", "bgap.sweep", "profile=tiny", "sweep_eval_episodes=4",
+           "trials=2", "mode=single", "workers=2", "study=by-env", f"root={tmp_path}",
+           f"preset={tmp_path}/tuned.yaml"]  # fmt: skip
+    env = {**os.environ, "BGAP_CLUSTER_ADDRESS": "local"}
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
+    assert done.returncode == 0, done.stderr[-2000:]
+    url = f"sqlite:///{tmp_path}/sweeps/optuna.db"
+    trials = optuna.load_study(study_name="by-env", storage=url).trials
+    assert 2 <= len(trials) <= 3  # 2 finished; at most one more in flight when they ended
+    assert len(list((tmp_path / "sweeps" / "by-env").glob("trial-*"))) == len(trials)
 
 
 def test_a_sweep_on_several_nodes_refuses_a_sqlite_study(tmp_path):

@@ -20,6 +20,7 @@ are written as a preset (default ``<root>/presets/<group>/user_tuned.yaml``, the
 from __future__ import annotations
 
 import json
+import os
 import warnings
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -35,7 +36,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from bgap.agents.policies import baseline, load_model, rollout
 from bgap.analysis.stats import constrained_score, per_100km, rule_objective
 from bgap.common import studies
-from bgap.common.cluster import ClusterConfig, run_tasks
+from bgap.common.cluster import ENV_ADDRESS, ClusterConfig, run_tasks
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -306,6 +307,10 @@ def _sweep_worker(cfg: SweepConfig, url: str, heartbeat: tuple[int, int]) -> int
     them all (a retried worker fails the trials a dead one left running, once their heartbeat
     is stale: RDB storages only). Returns its node's count of finished trials."""
     studies.HEARTBEAT = heartbeat  # the driver's (the tests shorten it)
+    # The worker runs its trials in its own process. ClusterConfig() would read the address
+    # back from the environment (how `dvc repro` sends a stage to a cluster), and each worker
+    # would send the sweep to the cluster again: workers starting workers without end.
+    os.environ.pop(ENV_ADDRESS, None)
     study = sweep(replace(cfg, cluster=ClusterConfig(), storage=url), progress=False)
     return len(study.get_trials(deepcopy=False, states=(TrialState.COMPLETE, TrialState.PRUNED)))
 
