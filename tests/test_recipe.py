@@ -152,3 +152,24 @@ def test_a_tiny_recipe_by_the_rule_trains_and_scores_both_policies(tmp_path):
         compose("train", ["agent=user_recipe", f"hydra.searchpath=[file://{tmp_path}/presets]"])
     ).agent
     assert agent.algo == "qrdqn"
+
+
+@pytest.mark.slow
+def test_the_check_in_processes_gives_the_rows_it_gives_in_one(tmp_path, monkeypatch):
+    """The candidates' check with ``workers=2`` (two (trial, seed) checks at a time, each in
+    a spawned process) and ``workers=1``: the same rows, in the same order."""
+    import bgap.experiments.recipe as recipe_module
+    from bgap.experiments.sweep import sweep
+
+    monkeypatch.setattr(recipe_module, "SIDE_BY_SIDE_STEPS", 0)  # tiny trainings too
+    base = ["mode=rule", "profile=tiny", "trials=1", "check_seeds=[0,1]", "check_episodes=10",
+            "sweep_eval_episodes=4", "env=sparse", "backend=vector",
+            f"root={tmp_path}"]  # fmt: skip
+    study = sweep(_cfg(*base), progress=False)
+    tables = {}
+    for workers in (1, 2):
+        cfg = _cfg(*base, f"workers={workers}")
+        rows = recipe_module.check_all(cfg, study.trials, tmp_path / f"w{workers}", False)
+        tables[workers] = pd.DataFrame(rows).drop(columns="run_dir")
+    assert list(tables[1].seed) == [0, 1]
+    pd.testing.assert_frame_equal(tables[1], tables[2])

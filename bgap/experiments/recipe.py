@@ -16,6 +16,7 @@ Three steps, all on validation episodes (seeds ``val_seed + k``; the test episod
    ``check_seeds`` and played on ``check_episodes`` validation episodes, beside the idle and
    rule-based egos on the same episodes. One trial's single lucky seed does not make a
    recipe: the chosen candidate is the best by the same rule applied to its mean over seeds.
+   The checks run ``workers`` (2) at a time, each in its own process.
    With ``stock_check=true`` each candidate's default policy is trained too (stock traffic,
    the same seeds), and candidates whose default policy misses issue 20's stock rule (under
    half of the episodes crashed, at 0.9 x idle's speed) rank after those that meet it.
@@ -33,17 +34,22 @@ Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pa
 from __future__ import annotations
 
 import json
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
+import numba
 import numpy as np
 import optuna
 import pandas as pd
+import torch
 from omegaconf import DictConfig
 
 from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
 from bgap.common.config import app, load, validate
+from bgap.common.errors import Interrupted
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
@@ -61,7 +67,7 @@ from bgap.experiments.sweep import (
     versus_rule,
     write_outputs,
 )
-from bgap.experiments.train import train
+from bgap.experiments.train import SIDE_BY_SIDE_STEPS, train
 
 GROUPS = ("reward", "agent")
 """Config groups a recipe sets (the search space's keys must stay inside them)."""
@@ -78,56 +84,91 @@ def check_candidate(
 ) -> list[dict[str, Any]]:
     """Train ``trial``'s settings with every check seed; one row per seed with the policy's,
     the idle ego's and the rule-based ego's validation figures."""
+    return [check_seed(cfg, trial, seed, root, progress) for seed in cfg.check_seeds]
 
-    rows = []
-    for seed in cfg.check_seeds:
-        # The trial's settings with this run's profile: the same budget (part of the study's
-        # identity), and the periodic validation whose curves the check plots.
-        overrides = [
-            o
-            for o in trial.user_attrs["overrides"]
-            if not o.startswith(("seed=", "profile.", "profile="))
-        ]
-        budget = [f"profile.{k}={'null' if v is None else v}" for k, v in
-                  asdict(cfg.profile).items() if k != "name"]  # fmt: skip
-        tcfg = validate(
-            compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
+
+def check_all(
+    cfg: RecipeConfig, trials: list[optuna.trial.FrozenTrial], root: Path, progress: bool = True
+) -> list[dict[str, Any]]:
+    """:func:`check_candidate` of every trial, the rows in the order of ``trials`` and seeds.
+    With ``workers`` > 1, the (trial, seed) checks run that many at a time in processes, as
+    ``bgap.train`` runs trainings side by side (each seeds itself: the same rows as one after
+    the other); trainings too short to pay for a process's start run here."""
+    calls = [(trial, seed) for trial in trials for seed in cfg.check_seeds]
+    if cfg.workers <= 1 or len(calls) == 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
+        return [check_seed(cfg, trial, seed, root, progress) for trial, seed in calls]
+    # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
+    context = get_context("spawn")
+    with ProcessPoolExecutor(min(cfg.workers, len(calls)), context) as pool:
+        futures = [pool.submit(_check_worker, cfg, trial, seed, root) for trial, seed in calls]
+        try:
+            return [future.result() for future in futures]
+        except KeyboardInterrupt:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise Interrupted(
+                f"the check stopped; its finished trainings are kept in {root} and are reused "
+                "when the same command runs again"
+            ) from None
+
+
+def _check_worker(
+    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, seed: int, root: Path
+) -> dict[str, Any]:
+    torch.set_num_threads(1)  # one process per core: threads would oversubscribe them
+    numba.set_num_threads(1)
+    return check_seed(cfg, trial, seed, root, progress=False)
+
+
+def check_seed(
+    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, seed: int, root: Path, progress: bool
+) -> dict[str, Any]:
+    """Train ``trial``'s settings with training seed ``seed`` (reused once finished); its row:
+    the policy's, the idle ego's and the rule-based ego's validation figures."""
+    # The trial's settings with this run's profile: the same budget (part of the study's
+    # identity), and the periodic validation whose curves the check plots.
+    overrides = [
+        o
+        for o in trial.user_attrs["overrides"]
+        if not o.startswith(("seed=", "profile.", "profile="))
+    ]
+    budget = [f"profile.{k}={'null' if v is None else v}" for k, v in
+              asdict(cfg.profile).items() if k != "name"]  # fmt: skip
+    tcfg = validate(
+        compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
+    )
+    run_dir = root / f"trial-{trial.number:04d}-s{seed}"
+    tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
+    train(replace(tcfg, resume=True), progress=progress)  # reused once finished
+    row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
+    if cfg.mode == "rule":  # both policies, each beside the rule-based ego
+        return row | _check_both(cfg, tcfg, run_dir, progress)
+    for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
+        ep = validation_episodes(policy, tcfg, cfg.check_episodes)
+        prefix = "" if name == "policy" else f"{name}_"
+        row[f"{prefix}collision_pct"] = 100.0 * float(ep.crashed.mean())
+        row[f"{prefix}avg_speed"] = float(ep.avg_speed.mean())
+        if name == "policy":
+            row["lane_changes"] = float(ep.lane_changes.mean())
+            row.update(crash_split(ep))
+    if cfg.stock_check:  # the same recipe's default policy, in its own (stock) traffic
+        stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
+        train(replace(stock, resume=True), progress=progress)
+        for name, policy in (("stock", stock.run_dir), ("stock_idle", "idle")):
+            ep = validation_episodes(policy, stock, cfg.check_episodes)
+            row[f"{name}_collision_pct"] = 100.0 * float(ep.crashed.mean())
+            row[f"{name}_avg_speed"] = float(ep.avg_speed.mean())
+    message = (
+        f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
+        f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
+        f"{row['idle_avg_speed']:.2f} m/s)"
+    )
+    if cfg.stock_check:
+        message += (
+            f"; default in stock traffic {row['stock_collision_pct']:.0f}% at "
+            f"{row['stock_avg_speed']:.2f} m/s (idle {row['stock_idle_avg_speed']:.2f})"
         )
-        run_dir = root / f"trial-{trial.number:04d}-s{seed}"
-        tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
-        train(replace(tcfg, resume=True), progress=progress)  # reused once finished
-        row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
-        if cfg.mode == "rule":  # both policies, each beside the rule-based ego
-            rows.append(row | _check_both(cfg, tcfg, run_dir, progress))
-            continue
-        for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
-            ep = validation_episodes(policy, tcfg, cfg.check_episodes)
-            prefix = "" if name == "policy" else f"{name}_"
-            row[f"{prefix}collision_pct"] = 100.0 * float(ep.crashed.mean())
-            row[f"{prefix}avg_speed"] = float(ep.avg_speed.mean())
-            if name == "policy":
-                row["lane_changes"] = float(ep.lane_changes.mean())
-                row.update(crash_split(ep))
-        if cfg.stock_check:  # the same recipe's default policy, in its own (stock) traffic
-            stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
-            train(replace(stock, resume=True), progress=progress)
-            for name, policy in (("stock", stock.run_dir), ("stock_idle", "idle")):
-                ep = validation_episodes(policy, stock, cfg.check_episodes)
-                row[f"{name}_collision_pct"] = 100.0 * float(ep.crashed.mean())
-                row[f"{name}_avg_speed"] = float(ep.avg_speed.mean())
-        rows.append(row)
-        message = (
-            f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
-            f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
-            f"{row['idle_avg_speed']:.2f} m/s)"
-        )
-        if cfg.stock_check:
-            message += (
-                f"; default in stock traffic {row['stock_collision_pct']:.0f}% at "
-                f"{row['stock_avg_speed']:.2f} m/s (idle {row['stock_idle_avg_speed']:.2f})"
-            )
-        print(message, flush=True)
-    return rows
+    print(message, flush=True)
+    return row
 
 
 def _check_both(
@@ -351,7 +392,7 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     )
     root = Path(cfg.root) / "sweeps" / study_name(cfg) / "check"  # beside the sweep's trials
     chosen_from = candidates(study, cfg.candidates)
-    rows = [row for t in chosen_from for row in check_candidate(cfg, t, root, progress)]
+    rows = check_all(cfg, chosen_from, root, progress)
     table = pd.DataFrame(rows)
     write_atomic(out / "candidates.csv", lambda p: table.to_csv(p, index=False))
     params = {t.number: t.params for t in chosen_from}
