@@ -361,3 +361,45 @@ def test_the_fast_mode_passes_the_parity_study_and_5_hz_does_not():
     fast = agreeing(fast_mode)
     assert len(fast) == 11 and fast.all(), fast[~fast]
     assert not agreeing(lambda config: {**config, "simulation_frequency": 5}).all()
+
+
+def test_a_finished_env_is_left_as_it_is():
+    """Action FINISHED: that env's state does not move and it is not reset; the others step
+    exactly as they would have."""
+    from bgap.common.vocab import FINISHED
+
+    config = env_config(make_cfg("env=dense", "mix=0.5"))
+    a, b = VectorHighway(config, 3), VectorHighway(config, 3)
+    a.reset(seed=[1, 2, 3])
+    b.reset(seed=[1, 2, 3])
+    kept = a.f[1].copy(), a.g[1].copy()
+    a.step(np.array([IDLE, FINISHED, IDLE]))
+    b.step(np.array([IDLE, IDLE, IDLE]))
+    assert np.array_equal(a.f[1], kept[0]) and np.array_equal(a.g[1], kept[1])
+    assert not np.array_equal(b.f[1], kept[0])
+    for env in (0, 2):
+        assert np.array_equal(a.f[env], b.f[env]) and np.array_equal(a.g[env], b.g[env])
+
+
+@pytest.mark.parametrize("traffic", ["dense", "replay"])
+def test_rollouts_that_skip_finished_envs_play_the_same_episodes(tmp_path, monkeypatch, traffic):
+    """The vector backend skips envs whose counted episode is over (issue 36): every episode
+    and every recorded frame is what the rollout that kept simulating them gave, in simulated
+    and in replayed traffic, with a policy that ends many episodes early."""
+    from bgap.agents.policies import rollout
+
+    config = env_config(make_cfg("env=dense", "env.duration=12", "mix=0.5"))
+    if traffic == "replay":
+        recorded = rollout(config, "idle", [3, 4], "vector", record=True).trajectories
+        table = tmp_path / "trajectories.parquet"
+        recorded.to_parquet(table)
+        replay = ["traffic=replay", f"traffic.table={table}", "traffic.min_duration=5"]
+        config = env_config(make_cfg("env=dense", "env.duration=12", *replay))
+    seeds = list(range(24))
+    skipped = rollout(config, "random", seeds, "vector", record=traffic != "replay")
+    monkeypatch.setattr(VectorHighway, "skips_finished", False)
+    played = rollout(config, "random", seeds, "vector", record=traffic != "replay")
+    pd.testing.assert_frame_equal(skipped.episodes, played.episodes)
+    assert skipped.episodes.steps.nunique() > 1  # some envs finished early and were skipped
+    if traffic != "replay":
+        pd.testing.assert_frame_equal(skipped.trajectories, played.trajectories)

@@ -31,6 +31,10 @@ ACTIONS = {name: index for index, name in DiscreteMetaAction.ACTIONS_ALL.items()
 LANE_LEFT, IDLE, LANE_RIGHT = ACTIONS["LANE_LEFT"], ACTIONS["IDLE"], ACTIONS["LANE_RIGHT"]
 FASTER, SLOWER = ACTIONS["FASTER"], ACTIONS["SLOWER"]
 N_ACTIONS = len(ACTIONS)
+FINISHED = -1
+"""The vector backend's "no action": the env's episode is over and no longer counted, so
+the step leaves it as it is (no simulation, no automatic reset); :func:`bgap.sim.rollout`
+sends it to envs whose first episode ended."""
 
 # ---------------------------------------------------------------- experiment names
 POLICIES = ("behavior_rich", "default")

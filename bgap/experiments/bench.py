@@ -5,6 +5,8 @@
                                     # pip install -e ".[bench]"), both cores
     python -m bgap.bench learn      # DQN gradient updates/s: SB3 (one training) vs the batched
                                     # learner with K = 1, 4, 10, 20 members, dense traffic
+    python -m bgap.bench evaluate   # evaluation's rollouts (100 seeded episodes a batch), envs
+                                    # whose episode ended skipped vs simulated on
     python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
                                     # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
     python -m bgap.bench cluster    # the same 4 trainings (a minute each) on a local Ray
@@ -253,6 +255,57 @@ def bench_sim(seconds: float, num_envs: int = 64, threads: int = 2) -> None:
     print("EnvPool has no behaviour classes (its traffic is highway-env's stock IDM).")
     print("fast: the vector backend at 10 Hz (bgap.scenario.fast_mode), the others at 15 Hz.")
     _print_phase_split(configs, num_envs, seconds)
+
+
+def bench_evaluate(seconds: float, episodes: int = 100) -> None:
+    """Evaluation's rollouts (:func:`bgap.sim.rollout.rollout`, one batch of ``episodes``
+    seeded episodes per cell and policy, as ``bgap.evaluate`` plays them) with envs whose
+    episode ended skipped (``FINISHED``, the default) against the same rollouts with them
+    simulated on (the baseline, in the same run): episodes/s of each and their ratio, dense
+    and sparse, for the baselines and an untrained DQN (its forward pass costs what a trained
+    one's does). The episodes are the same (tests/test_sim.py); ``seconds`` bounds each
+    measurement's repetitions."""
+    # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
+    import torch
+
+    from bgap.agents.policies import rollout
+    from bgap.experiments.train import make_training_env
+    from bgap.experiments.training import build_model
+    from bgap.sim.vector import VectorHighway
+
+    torch.set_num_threads(1)  # as bgap.evaluate's workers
+
+    def rate(config: dict, policy, skip: bool) -> tuple[float, float]:
+        VectorHighway.skips_finished = skip
+        seeds, played, start = range(episodes), 0, time.perf_counter()
+        while True:
+            ep = rollout(config, policy, seeds, "vector").episodes
+            played += len(ep)
+            if time.perf_counter() - start >= seconds:
+                break
+        finished = 1 - ep.steps.mean() / ep.steps.max()  # env-steps a full batch wastes
+        return played / (time.perf_counter() - start), finished
+
+    print(f"{episodes} episodes per batch, episodes/s; 'ended early': the share of the "
+          "batch's env-steps after an env's episode ended")  # fmt: skip
+    print(f"{'scenario':<9}{'policy':<9}{'simulated on':>14}{'skipped':>10}{'ratio':>8}"
+          f"{'ended early':>13}")  # fmt: skip
+    try:
+        for density in ("dense", "sparse"):
+            cfg = validate(compose_training("train", [f"env={density}"]))
+            config = env_config(cfg)
+            with tempfile.TemporaryDirectory() as tmp:
+                env = make_training_env(cfg, 1, seed=0)
+                model = build_model(cfg, env, Path(tmp))
+                rollout(config, model, range(2), "vector")  # compile / load the kernels
+                for name, policy in (("idle", "idle"), ("rule", "rule"), ("random", "random"),
+                                     ("dqn", model)):  # fmt: skip
+                    base, _ = rate(config, policy, False)
+                    fast, early = rate(config, policy, True)
+                    print(f"{density:<9}{name:<9}{base:>14.1f}{fast:>10.1f}{fast / base:>8.2f}"
+                          f"{early:>13.1%}")  # fmt: skip
+    finally:
+        VectorHighway.skips_finished = True
 
 
 def _print_phase_split(configs: dict[str, dict], num_envs: int, seconds: float) -> None:
@@ -518,6 +571,7 @@ BENCHES: dict[str, Callable[[float], None]] = {
     "cmetric": bench_cmetric,
     "sim": bench_sim,
     "learn": bench_learn,
+    "evaluate": bench_evaluate,
     "cluster": bench_cluster,
 }
 

@@ -578,6 +578,8 @@ def replay_batch(f, g, p, actions, speeds, frames, dt, lanes, rp, rframe, tracks
     """:func:`step_batch` for replayed traffic (:func:`replay_frame`)."""
     n_env, n = f.shape[0], f.shape[1]
     for b in nb.prange(n_env):
+        if actions[b] < 0:  # FINISHED: the caller no longer counts this env's episode
+            continue
         pa = np.empty((4, 2))
         pb = np.empty((4, 2))
         order = np.arange(n)
@@ -755,11 +757,14 @@ def record(f, g, b, n, out, t):
 @nb.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
 def step_batch(f, g, p, actions, speeds, frames, dt, lanes, rec):
     """Advance every env by one policy step: the ego's meta-action on the first frame
-    (AbstractEnv._simulate), then ``frames`` simulation frames. When ``rec`` has one slot per
+    (AbstractEnv._simulate), then ``frames`` simulation frames; an env whose action is
+    negative (``FINISHED``) is left as it is. When ``rec`` has one slot per
     frame (shape[1] == frames) every frame's state is written into it."""
     n_env, n = f.shape[0], f.shape[1]
     recording = rec.shape[1] == frames and rec.shape[0] == n_env
     for b in nb.prange(n_env):
+        if actions[b] < 0:  # FINISHED: the caller no longer counts this env's episode
+            continue
         pa = np.empty((4, 2))
         pb = np.empty((4, 2))
         order = np.arange(n)

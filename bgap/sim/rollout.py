@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bgap.common.vocab import IDLE, LABEL_NAMES, LANE_CHANGE_WINDOW
+from bgap.common.vocab import FINISHED, IDLE, LABEL_NAMES, LANE_CHANGE_WINDOW
 from bgap.sim.recorder import table_from_states
 from bgap.sim.simulators import make_vector_env
 
@@ -214,8 +214,8 @@ def rollout(
 def _play(
     venv: Any, act: Policy, seeds: Sequence[int], record: bool, film: bool, policy_frequency: float
 ) -> tuple[list[dict], list[tuple[np.ndarray, list[str]]], list[np.ndarray]]:
-    """Every env's first episode after a seeded reset; an env that finished idles (its next
-    episode is not counted)."""
+    """Every env's first episode after a seeded reset; an env that finished idles or, on the
+    vector backend, stops (its next episode is not counted)."""
     b = len(seeds)
     obs, info = venv.reset(seed=list(seeds))
     rngs = [np.random.default_rng(seed) for seed in seeds]
@@ -224,9 +224,12 @@ def _play(
     frames = [[info["reset_frames"][i]] for i in range(b)] if record else []
     labels = [[LABEL_NAMES[int(c)] for c in info["labels"][i]] for i in range(b)] if record else []
     images = list(info["images"][0]) if film else []
+    # a finished env idles; the vector backend skips it (FINISHED): the same episodes, fewer
+    # frames (a batch runs until its longest episode ends)
+    rest = FINISHED if getattr(venv, "skips_finished", False) else IDLE
     while live.any():
         idx = np.flatnonzero(live)
-        actions = np.full(b, IDLE)
+        actions = np.full(b, rest)
         actions[idx] = act(obs[idx], [rngs[i] for i in idx])
         obs, reward, terminated, truncated, info = venv.step(actions)
         stats.add(idx, reward, info)

@@ -27,6 +27,7 @@ from gymnasium.vector import AutoresetMode
 from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.common.errors import ConfigError, check
+from bgap.common.vocab import FINISHED
 from bgap.sim import core
 from bgap.sim.core import (
     ACC,
@@ -153,6 +154,9 @@ class VectorHighway(gym.vector.VectorEnv):
     """
 
     metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    skips_finished = True
+    """An action ``FINISHED`` leaves its env as it is: no frames, no automatic reset (its
+    returned row is stale). Evaluation sends it once an env's counted episode is over."""
 
     def __init__(
         self,
@@ -448,7 +452,7 @@ class VectorHighway(gym.vector.VectorEnv):
         info["rewards"] = terms
         if self.record:
             info["frames"] = self.frames.copy()
-        done = terminated | truncated
+        done = (terminated | truncated) & (actions != FINISHED)  # finished envs stay as they are
         if done.any():
             info["final_obs"] = np.empty(self.num_envs, dtype=object)
             info["_final_obs"] = done.copy()
