@@ -157,6 +157,27 @@ def test_any_sb3_model_or_callable_is_a_policy(tmp_path):
     pd.testing.assert_frame_equal(a, b)  # loaded from the file as the same algorithm
 
 
+def test_an_evaluation_in_worker_processes_plays_what_one_process_plays(tmp_path, monkeypatch):
+    """Vector backend, ``workers=2``: the cells' batches in two spawned one-thread processes
+    (each loading a model once) give the rows, in their order, of the in-process run."""
+    from stable_baselines3 import DQN
+
+    import bgap.experiments.evaluate as evaluate_module
+    from bgap.envs import make_env as make
+
+    monkeypatch.setattr(evaluate_module, "PROCESS_EPISODES", 0)  # a small run in processes too
+    cfg = exp_cfg("env=sparse", "env.duration=5", "backend=vector")
+    DQN("MlpPolicy", make(cfg), seed=0).save(tmp_path / "dqn.zip")
+    policies = {"random": "random", "dqn": str(tmp_path / "dqn.zip"), "rule": "rule"}
+    cells = [Cell(mix, "sparse", 180.0) for mix in (0.0, 0.5, 1.0)]
+    tables = [
+        evaluate(replace(cfg, workers=workers), policies, cells, episodes=6, progress=False)
+        for workers in (1, 2)
+    ]
+    pd.testing.assert_frame_equal(*tables)
+    assert list(tables[0].policy.unique()) == list(policies)
+
+
 def test_paper_grid_has_the_papers_cells():
     from bgap.experiments.evaluate import grid_cells
 

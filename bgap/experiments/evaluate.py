@@ -160,6 +160,31 @@ def _evaluate_shipped(name: str, spec: Any, *rest: Any) -> list:
     return _evaluate_chunk(name, spec, *rest)
 
 
+PROCESS_EPISODES = 5_000
+"""Vector-backend evaluations of fewer episodes run in this process: a spawned worker takes
+seconds to import torch and bgap."""
+
+_MODELS: dict[str, Any] = {}
+"""A worker process's loaded models by path (an SB3 load builds the networks again)."""
+
+
+def _one_thread() -> None:
+    import numba
+    import torch
+
+    torch.set_num_threads(1)
+    numba.set_num_threads(1)
+
+
+def _evaluate_cached(name: str, spec: Any, *rest: Any) -> list:
+    """:func:`_evaluate_chunk` in a worker process, each model loaded once per process."""
+    if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
+        if str(spec) not in _MODELS:
+            _MODELS[str(spec)] = load_model(spec)
+        spec = _MODELS[str(spec)]
+    return _evaluate_chunk(name, spec, *rest)
+
+
 def _loaded(spec: Any) -> Any:
     """A saved model's path as the loaded model; any other policy form as it is."""
     if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
@@ -192,10 +217,12 @@ def evaluate(
     cells = list(cells or grid_cells(cfg))
     episodes = episodes or cfg.profile.eval_episodes
     seeds = [cfg.eval_seed + k for k in range(episodes)]
-    if cfg.backend == "vector":  # one batch per cell and policy, compiled threads in-process
-        chunk, workers = episodes, 1
-    else:
-        workers = cfg.workers
+    workers = cfg.workers
+    if cfg.backend == "vector":  # one batch per cell and policy
+        chunk = episodes
+        named = all(isinstance(spec, (str, Path)) for spec in policies.values())
+        if not named or len(cells) * len(policies) * episodes < PROCESS_EPISODES:
+            workers = 1  # in-process: any policy object; no process start for a small run
     if workers == 1 and not cfg.cluster.enabled:  # in-process: load each model once, not once
         # per cell and chunk (an SB3 load builds the networks again: ~0.3 s, 1,200 times in
         # the paper's grid)
@@ -228,6 +255,15 @@ def _play(
             cfg.cluster, _evaluate_shipped, calls, lambda k, r: bar.update(chunk)
         ):
             rows.extend(part)
+    elif workers > 1 and cfg.backend == "vector":
+        # processes of one thread each: a process's kernels in one thread and its policies'
+        # forward passes alternate, so a process with threads leaves cores idle between its
+        # kernels; spawned, not forked, since torch's thread pool does not survive a fork
+        context = get_context("spawn")
+        with ProcessPoolExecutor(workers, context, initializer=_one_thread) as pool:
+            for part in pool.map(_evaluate_cached, *zip(*jobs, strict=True)):
+                rows.extend(part)
+                bar.update(chunk)
     elif workers > 1:
         with ProcessPoolExecutor(workers, mp_context=get_context("fork")) as pool:
             for part in pool.map(_evaluate_chunk, *zip(*jobs, strict=True)):
