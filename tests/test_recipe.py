@@ -107,6 +107,31 @@ def test_a_tiny_recipe_writes_its_presets_and_tables(tmp_path):
     assert paths["curves"].exists() and paths["table"].exists()
 
 
+def test_a_lever_replaces_the_chosen_trials_own_setting_and_one_it_has_is_left_out():
+    import optuna
+
+    from bgap.common.errors import ConfigError
+    from bgap.experiments.recipe import lever_variants
+
+    overrides = ["env=dense", "agent.extractor=attention", "agent.observation=[closing,ttc]"]
+    trial = optuna.trial.create_trial(value=1.0, user_attrs={"overrides": overrides})
+    trial.number = 7
+    cfg = _cfg("mode=rule", "levers=['agent.extractor=flatten','agent.extractor=attention',"
+               "'agent.observation=[]','agent.gamma=0.9']")  # fmt: skip
+    variants = lever_variants(cfg, trial)
+    assert [v.label for v in variants] == [
+        "agent.extractor=flatten", "agent.observation=[]", "agent.gamma=0.9"]  # fmt: skip
+    assert variants[0].overrides == [
+        "env=dense", "agent.observation=[closing,ttc]", "agent.extractor=flatten"]  # fmt: skip
+    assert variants[2].overrides == [*overrides, "agent.gamma=0.9"]  # not in the trial: added
+    assert [v.folder for v in variants] == [
+        "trial-0007-lever1", "trial-0007-lever3", "trial-0007-lever4"]  # fmt: skip
+    with pytest.raises(ConfigError, match="levers"):
+        _cfg("levers=['agent.extractor=flatten']")  # needs mode=rule
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        _cfg("mode=rule", "levers=[flatten]")
+
+
 def test_by_the_rule_the_mean_over_seeds_decides_and_intervals_have_width():
     """mode=rule's choice (issue 32): candidates ranked by the objective of their means over
     seeds; a candidate whose seeds agree exactly still gets an interval of non-zero width
@@ -142,10 +167,17 @@ def test_a_tiny_recipe_by_the_rule_trains_and_scores_both_policies(tmp_path):
         "mode=rule", "agent=qrdqn", "sweep=learner_qrdqn", "profile=tiny", "trials=2",
         "candidates=1", "check_seeds=[0,1]", "check_episodes=10", "sweep_eval_episodes=4",
         "env=sparse", "backend=vector", f"root={tmp_path}",
+        "levers=['agent.extractor=flatten','agent.extractor=attention']",
     )  # fmt: skip
     paths = recipe(cfg, progress=False)
     table = pd.read_csv(paths["candidates"])
     assert len(table) == 2 and (table.rule_avg_speed > 20).all()
+    # one of the two levers is the chosen trial's own extractor: only the other is trained
+    levers = pd.read_csv(tmp_path / "recipe" / "levers.csv")
+    assert len(levers) == 2 and levers.trial.nunique() == 1
+    assert levers.run_dir.str.contains("-lever").all()
+    text = paths["levers"].read_text()
+    assert "Left out (the recipe already has them)" in text and text.count("\n| ") == 3
     assert (table.stock_rule_avg_speed > 20).all() and table.stock_avg_speed.between(5, 40).all()
     assert "rule-based ego" in paths["table"].read_text()
     agent = validate(
@@ -169,7 +201,8 @@ def test_the_check_in_processes_gives_the_rows_it_gives_in_one(tmp_path, monkeyp
     tables = {}
     for workers in (1, 2):
         cfg = _cfg(*base, f"workers={workers}")
-        rows = recipe_module.check_all(cfg, study.trials, tmp_path / f"w{workers}", False)
+        variants = [recipe_module.variant(t) for t in study.trials]
+        rows = recipe_module.check_all(cfg, variants, tmp_path / f"w{workers}", False)
         tables[workers] = pd.DataFrame(rows).drop(columns="run_dir")
     assert list(tables[1].seed) == [0, 1]
     pd.testing.assert_frame_equal(tables[1], tables[2])

@@ -327,6 +327,10 @@ class RecipeConfig(SweepConfig):
     validation episodes) after those that meet it: the recipe is shared by both policies."""
     stock_max_collision_pct: float = 50.0
     """The stock rule's collision bound (issue 20: under half of the episodes)."""
+    levers: list[str] = field(default_factory=list)
+    """Mode ``rule``: settings of the chosen recipe switched one at a time (for example
+    ``agent.extractor=flatten``, ``agent.observation=[]``), each trained with every check
+    seed and scored as the check is: ``levers.md`` says how far each moves the objective."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -340,6 +344,14 @@ class RecipeConfig(SweepConfig):
         check(self.candidates >= 1, "candidates", self.candidates, "must be >= 1")
         check(len(self.check_seeds) >= 2, "check_seeds", self.check_seeds, ">= 2 seeds")
         check(self.check_episodes >= 10, "check_episodes", self.check_episodes, ">= 10")
+        for lever in self.levers:
+            check(
+                "=" in lever,
+                "levers",
+                lever,
+                "each lever is KEY=VALUE, e.g. agent.extractor=flatten",
+            )
+        check(not self.levers or self.mode == "rule", "levers", self.levers, "need mode=rule")
 
 
 SCHEMAS = (

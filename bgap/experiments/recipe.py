@@ -38,7 +38,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -79,28 +79,56 @@ def candidates(study: optuna.Study, k: int) -> list[optuna.trial.FrozenTrial]:
     return sorted(done, key=lambda t: (t.value, t.number))[:k]
 
 
+class Variant(NamedTuple):
+    """Settings the check trains: a sweep trial's, or the chosen trial's with one lever
+    switched (:func:`lever_variants`)."""
+
+    label: int | str
+    """The tables' ``trial`` column: the trial's number, or the lever."""
+    folder: str
+    """Its run folders' stem under the check's root (``trial-0005``, ``trial-0005-lever1``)."""
+    overrides: list[str]
+
+
+def variant(trial: optuna.trial.FrozenTrial) -> Variant:
+    return Variant(trial.number, f"trial-{trial.number:04d}", list(trial.user_attrs["overrides"]))
+
+
+def lever_variants(cfg: RecipeConfig, trial: optuna.trial.FrozenTrial) -> list[Variant]:
+    """The chosen ``trial`` with each of ``cfg.levers`` (``KEY=VALUE``) in place of its own
+    value of KEY; a lever the trial already has is left out."""
+    own = variant(trial)
+    out = []
+    for k, lever in enumerate(cfg.levers, 1):
+        key = lever.split("=", 1)[0]
+        overrides = [o for o in own.overrides if not o.startswith(f"{key}=")] + [lever]
+        if sorted(overrides) != sorted(own.overrides):
+            out.append(Variant(lever, f"{own.folder}-lever{k}", overrides))
+    return out
+
+
 def check_candidate(
     cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, root: Path, progress: bool = True
 ) -> list[dict[str, Any]]:
     """Train ``trial``'s settings with every check seed; one row per seed with the policy's,
     the idle ego's and the rule-based ego's validation figures."""
-    return [check_seed(cfg, trial, seed, root, progress) for seed in cfg.check_seeds]
+    return [check_seed(cfg, variant(trial), seed, root, progress) for seed in cfg.check_seeds]
 
 
 def check_all(
-    cfg: RecipeConfig, trials: list[optuna.trial.FrozenTrial], root: Path, progress: bool = True
+    cfg: RecipeConfig, variants: list[Variant], root: Path, progress: bool = True
 ) -> list[dict[str, Any]]:
-    """:func:`check_candidate` of every trial, the rows in the order of ``trials`` and seeds.
-    With ``workers`` > 1, the (trial, seed) checks run that many at a time in processes, as
-    ``bgap.train`` runs trainings side by side (each seeds itself: the same rows as one after
-    the other); trainings too short to pay for a process's start run here."""
-    calls = [(trial, seed) for trial in trials for seed in cfg.check_seeds]
+    """:func:`check_seed` of every variant and check seed, the rows in that order. With
+    ``workers`` > 1, the checks run that many at a time in processes, as ``bgap.train`` runs
+    trainings side by side (each seeds itself: the same rows as one after the other);
+    trainings too short to pay for a process's start run here."""
+    calls = [(v, seed) for v in variants for seed in cfg.check_seeds]
     if cfg.workers <= 1 or len(calls) == 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
-        return [check_seed(cfg, trial, seed, root, progress) for trial, seed in calls]
+        return [check_seed(cfg, v, seed, root, progress) for v, seed in calls]
     # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
     context = get_context("spawn")
     with ProcessPoolExecutor(min(cfg.workers, len(calls)), context) as pool:
-        futures = [pool.submit(_check_worker, cfg, trial, seed, root) for trial, seed in calls]
+        futures = [pool.submit(_check_worker, cfg, v, seed, root) for v, seed in calls]
         try:
             return [future.result() for future in futures]
         except KeyboardInterrupt:
@@ -111,35 +139,29 @@ def check_all(
             ) from None
 
 
-def _check_worker(
-    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, seed: int, root: Path
-) -> dict[str, Any]:
+def _check_worker(cfg: RecipeConfig, v: Variant, seed: int, root: Path) -> dict[str, Any]:
     torch.set_num_threads(1)  # one process per core: threads would oversubscribe them
     numba.set_num_threads(1)
-    return check_seed(cfg, trial, seed, root, progress=False)
+    return check_seed(cfg, v, seed, root, progress=False)
 
 
 def check_seed(
-    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, seed: int, root: Path, progress: bool
+    cfg: RecipeConfig, v: Variant, seed: int, root: Path, progress: bool
 ) -> dict[str, Any]:
-    """Train ``trial``'s settings with training seed ``seed`` (reused once finished); its row:
+    """Train ``v``'s settings with training seed ``seed`` (reused once finished); its row:
     the policy's, the idle ego's and the rule-based ego's validation figures."""
     # The trial's settings with this run's profile: the same budget (part of the study's
     # identity), and the periodic validation whose curves the check plots.
-    overrides = [
-        o
-        for o in trial.user_attrs["overrides"]
-        if not o.startswith(("seed=", "profile.", "profile="))
-    ]
+    overrides = [o for o in v.overrides if not o.startswith(("seed=", "profile.", "profile="))]
     budget = [f"profile.{k}={'null' if v is None else v}" for k, v in
               asdict(cfg.profile).items() if k != "name"]  # fmt: skip
     tcfg = validate(
         compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
     )
-    run_dir = root / f"trial-{trial.number:04d}-s{seed}"
+    run_dir = root / f"{v.folder}-s{seed}"
     tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
     train(replace(tcfg, resume=True), progress=progress)  # reused once finished
-    row: dict[str, Any] = {"trial": trial.number, "seed": seed, "run_dir": str(run_dir)}
+    row: dict[str, Any] = {"trial": v.label, "seed": seed, "run_dir": str(run_dir)}
     if cfg.mode == "rule":  # both policies, each beside the rule-based ego
         return row | _check_both(cfg, tcfg, run_dir, progress)
     for name, policy in (("policy", str(run_dir)), ("idle", "idle"), ("rule", "rule")):
@@ -158,7 +180,7 @@ def check_seed(
             row[f"{name}_collision_pct"] = 100.0 * float(ep.crashed.mean())
             row[f"{name}_avg_speed"] = float(ep.avg_speed.mean())
     message = (
-        f"trial {trial.number} seed {seed}: {row['collision_pct']:.0f}% collisions at "
+        f"trial {v.label} seed {seed}: {row['collision_pct']:.0f}% collisions at "
         f"{row['avg_speed']:.2f} m/s (idle {row['idle_collision_pct']:.0f}%, "
         f"{row['idle_avg_speed']:.2f} m/s)"
     )
@@ -267,6 +289,61 @@ def meets_stock_rule(cfg: RecipeConfig, row: Any) -> bool:
         row["stock_collision_pct"] < cfg.stock_max_collision_pct
         and row["stock_avg_speed"] >= cfg.speed_floor * row["stock_idle_avg_speed"]
     )
+
+
+def check_levers(
+    cfg: RecipeConfig,
+    trial: optuna.trial.FrozenTrial,
+    summary: pd.DataFrame,
+    root: Path,
+    out: Path,
+    progress: bool,
+) -> dict[str, Path]:
+    """The chosen ``trial`` with each lever switched (:func:`lever_variants`), checked as
+    the candidates were (the same seeds and validation episodes): ``levers.csv`` (lever x
+    seed) and ``levers.md``, each lever's figures beside the recipe's (``summary``'s row of
+    ``trial``) and how far it moves the objective."""
+    variants = lever_variants(cfg, trial)
+    table = pd.DataFrame(check_all(cfg, variants, root, progress))
+    write_atomic(out / "levers.csv", lambda p: table.to_csv(p, index=False))
+    chosen = summary[summary.trial == trial.number]
+    levers = choose_by_rule(cfg, table) if len(table) else chosen.iloc[:0]
+    kept = [lever for lever in cfg.levers if lever not in {v.label for v in variants}]
+    write_atomic(out / "levers.md", markdown_levers(cfg, chosen.iloc[0], levers, kept))
+    return {"levers": out / "levers.md"}
+
+
+def markdown_levers(
+    cfg: RecipeConfig, chosen: pd.Series, levers: pd.DataFrame, kept: list[str]
+) -> str:
+    lines = [
+        f"# Levers of the chosen recipe (trial {chosen.trial}), one switched at a time",
+        "",
+        f"Each row trains the chosen recipe with one setting changed, on the check's "
+        f"{len(cfg.check_seeds)} training seeds x {cfg.check_episodes} validation episodes per "
+        "seed and policy, scored by the search's objective (below 0: both of issue 32's rules "
+        "are met). The change in objective is the row's minus the recipe's: positive, the "
+        "lever as the recipe has it helps. Intervals: 95% t across seeds.",
+        "",
+        "| setting | behaviour-rich per 100 km [95% CI] | speed m/s | default in stock % "
+        "[95% CI] | speed m/s | objective | change |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for label, r in [(f"the recipe (trial {chosen.trial})", chosen)] + [
+        (f"`{r.trial}`", r) for _, r in levers.iterrows()
+    ]:
+        lines.append(
+            f"| {label} | {r.per_100km:.2f} [{r.per_100km_lo:.2f}, {r.per_100km_hi:.2f}] | "
+            f"{r.avg_speed:.2f} | {r.stock_collision_pct:.1f} [{r.stock_collision_pct_lo:.1f}, "
+            f"{r.stock_collision_pct_hi:.1f}] | {r.stock_avg_speed:.2f} | {r.objective:.2f} | "
+            f"{r.objective - chosen.objective:+.2f} |"
+        )
+    if kept:
+        lines += [
+            "",
+            "Left out (the recipe already has them): " + ", ".join(f"`{k}`" for k in kept),
+        ]
+    return "\n".join(lines) + "\n"
 
 
 def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
@@ -392,7 +469,7 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     )
     root = Path(cfg.root) / "sweeps" / study_name(cfg) / "check"  # beside the sweep's trials
     chosen_from = candidates(study, cfg.candidates)
-    rows = check_all(cfg, chosen_from, root, progress)
+    rows = check_all(cfg, [variant(t) for t in chosen_from], root, progress)
     table = pd.DataFrame(rows)
     write_atomic(out / "candidates.csv", lambda p: table.to_csv(p, index=False))
     params = {t.number: t.params for t in chosen_from}
@@ -409,6 +486,8 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         out / "learning_curves.png",
         f"recipe (trial {trial.number}): validation during training, each seed",
     )
+    if cfg.levers:
+        paths |= check_levers(cfg, trial, summary, root, out, progress)
     tcfg = validate(compose("train", trial.user_attrs["overrides"]))
     preset_dir = Path(cfg.preset_dir or Path(cfg.root) / "presets")
     note = (

@@ -99,7 +99,7 @@ def suggest(trial: optuna.Trial, space: dict[str, dict[str, Any]]) -> dict[str, 
 STUDY_VOLATILE = (
     *VOLATILE, "trials", "storage", "study", "write_preset", "preset", "seeds",
     # bgap.recipe's settings of what follows the sweep
-    "candidates", "check_seeds", "check_episodes", "preset_dir", "preset_name",
+    "candidates", "check_seeds", "check_episodes", "preset_dir", "preset_name", "levers",
 )  # fmt: skip
 """Sweep settings that do not change a trial's value (the trial budget may grow on a rerun)."""
 
