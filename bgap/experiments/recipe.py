@@ -34,9 +34,9 @@ Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pa
 from __future__ import annotations
 
 import json
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -126,7 +126,7 @@ def check_all(
     if cfg.workers <= 1 or len(calls) == 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
         return [check_seed(cfg, v, seed, root, progress) for v, seed in calls]
     # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
-    context = get_context("spawn")
+    context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(min(cfg.workers, len(calls)), context) as pool:
         futures = [pool.submit(_check_worker, cfg, v, seed, root) for v, seed in calls]
         try:
