@@ -107,14 +107,6 @@ def lever_variants(cfg: RecipeConfig, trial: optuna.trial.FrozenTrial) -> list[V
     return out
 
 
-def check_candidate(
-    cfg: RecipeConfig, trial: optuna.trial.FrozenTrial, root: Path, progress: bool = True
-) -> list[dict[str, Any]]:
-    """Train ``trial``'s settings with every check seed; one row per seed with the policy's,
-    the idle ego's and the rule-based ego's validation figures."""
-    return [check_seed(cfg, variant(trial), seed, root, progress) for seed in cfg.check_seeds]
-
-
 def check_all(
     cfg: RecipeConfig, variants: list[Variant], root: Path, progress: bool = True
 ) -> list[dict[str, Any]]:
@@ -153,8 +145,8 @@ def check_seed(
     # The trial's settings with this run's profile: the same budget (part of the study's
     # identity), and the periodic validation whose curves the check plots.
     overrides = [o for o in v.overrides if not o.startswith(("seed=", "profile.", "profile="))]
-    budget = [f"profile.{k}={'null' if v is None else v}" for k, v in
-              asdict(cfg.profile).items() if k != "name"]  # fmt: skip
+    budget = [f"profile.{key}={'null' if value is None else value}" for key, value in
+              asdict(cfg.profile).items() if key != "name"]  # fmt: skip
     tcfg = validate(
         compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
     )
