@@ -16,7 +16,13 @@ import pytest
 import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from bgap.agents.batched import BatchedDQN, Schedule, StackedReplay, initial_parameters
+from bgap.agents.batched import (
+    BatchedDQN,
+    Schedule,
+    StackedAdam,
+    StackedReplay,
+    initial_parameters,
+)
 from bgap.agents.config import AgentConfig
 from bgap.agents.dqn import DQN
 from bgap.agents.per import PrioritizedReplayBuffer, PrioritizedSamples
@@ -135,6 +141,38 @@ def test_members_outside_an_update_do_not_move_and_moving_ones_are_unaffected():
     # and a member that is behind in steps is updated with its own bias correction
     learner.update(stream[0], weights[0], np.arange(3))
     assert list(learner.optimizer.steps) == [1, 21, 1]
+
+
+def test_stacked_adam_is_torchs_adam_bit_for_bit_in_lock_step_and_apart():
+    """The in-place lock-step update and the per-count path against torch.optim.adam's
+    functional update on the same stacked tensors (gradients with exact zeros, as a dead
+    ReLU's): parameters and both moments equal to the last bit."""
+    from torch.optim.adam import adam
+
+    shapes = [(3, 25, 64), (3, 64), (3, 64, 5), (3, 5)]
+    gen = torch.Generator().manual_seed(0)
+    params = [torch.randn(s, generator=gen) * 0.1 for s in shapes]
+    ours, ref = [t.clone() for t in params], [t.clone() for t in params]
+    opt = StackedAdam(ours, lr=3e-4)
+    m, v = [torch.zeros(s) for s in shapes], [torch.zeros(s) for s in shapes]
+    counts = np.zeros(3, dtype=np.int64)
+    masks = [np.array([True, True, True])] * 5 + [np.array([False, True, False])] * 3
+    masks += [np.array([True, True, True])] * 4  # members at two counts: one update each
+    for mask in masks:
+        grads = [torch.randn(s, generator=gen) * (torch.rand(s, generator=gen) > 0.3)
+                 for s in shapes]  # fmt: skip
+        opt.step(ours, grads, mask)
+        for k in np.flatnonzero(mask):  # the reference: torch's Adam, member by member
+            p, mk, vk = [t[k] for t in ref], [t[k] for t in m], [t[k] for t in v]
+            with torch.no_grad():
+                steps = [torch.tensor(float(counts[k])) for _ in p]  # one each: adam adds 1
+                adam(p, [g[k] for g in grads], mk, vk, [], steps, foreach=False, amsgrad=False,
+                     beta1=0.9, beta2=0.999, lr=3e-4, weight_decay=0.0, eps=1e-8,
+                     maximize=False)  # fmt: skip
+            counts[k] += 1
+    assert list(opt.steps) == list(counts) == [9, 12, 9]
+    for a, b in zip((*ours, *opt.exp_avg, *opt.exp_avg_sq), (*ref, *m, *v), strict=True):
+        assert torch.equal(a, b)
 
 
 def test_prioritized_sampling_follows_the_priorities_and_sb3_buffers_weights():
