@@ -211,7 +211,9 @@ def test_the_replay_cells_in_params_name_every_replayed_table():
 
 def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     """dvc.yaml lists a reader before the stage that writes what it reads (as replay_data
-    after evaluate_baselines): the rehearsal's order puts the writer first anyway."""
+    after evaluate_baselines): the rehearsal's order puts the writer first anyway, and a
+    rehearsal of the reader alone runs the writer too (a copy holds no outputs), and no
+    stage that the reader does not read from."""
     import yaml
 
     from bgap.experiments.pipeline import _upstream_first
@@ -219,9 +221,11 @@ def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     stages = {
         "reader": {"cmd": "cat data/table > read", "deps": ["data"], "outs": ["read"]},
         "writer": {"cmd": "mkdir -p data && echo 1 > data/table", "outs": ["data"]},
+        "other": {"cmd": "echo 2 > other", "outs": ["other"]},
     }
     (tmp_path / "dvc.yaml").write_text(yaml.safe_dump({"stages": stages}, sort_keys=False))
     subprocess.run(["git", "init", "-q"], cwd=tmp_path, check=True)
     subprocess.run([sys.executable, "-m", "dvc", "init", "-q"], cwd=tmp_path, check=True)
-    rank = _upstream_first(tmp_path)
+    rank, needed = _upstream_first(tmp_path, ["reader"])
     assert rank["writer"] < rank["reader"]
+    assert needed == {"reader", "writer"}

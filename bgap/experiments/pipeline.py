@@ -213,28 +213,39 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
         ):
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
-                raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
+                raise ConfigError(f"setting up the rehearsal in {tree} failed "
+                                  f"({' '.join(cmd[:3])}): see {log}")  # fmt: skip
         # one stage at a time, each after the stages it reads (the pipeline's graph), on the
         # committed presets: a stage that writes a preset (the recipe's unseeded sweep) runs
         # last, so that no other stage reads a rehearsal's preset instead of the checkout's
-        rank = _upstream_first(tree)
-        for stage in sorted(stages, key=lambda s: (s.split("@")[0] in LAST, rank[s])):
+        # a copy holds no outputs (no DVC cache): the stages the named ones read from are
+        # rehearsed too, before them (only the named stages are compared and relocked)
+        rank, needed = _upstream_first(tree, stages)
+        for stage in sorted(needed, key=lambda s: (s.split("@")[0] in LAST, rank[s])):
             cmd = [sys.executable, "-m", "dvc", "repro", "--force", "--single-item", stage]
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
-                raise RuntimeError(f"{' '.join(cmd)} failed in {tree}: see {log}")
+                raise ConfigError(
+                    f"the rehearsal of {stage} failed in {tree}: its log is {log}; fix what it "
+                    "says and rerun (finished rehearsals are kept)"
+                )
 
 
-def _upstream_first(tree: Path) -> dict[str, int]:
+def _upstream_first(tree: Path, stages: list[str]) -> tuple[dict[str, int], set[str]]:
     """Every stage of ``tree``'s pipeline ranked so that each comes after those whose
-    outputs it reads (dvc.yaml's own order may put a data stage after its reader)."""
+    outputs it reads (dvc.yaml's own order may put a data stage after its reader), and the
+    names of ``stages`` (a ``foreach`` stage's name stands for all its items) with every
+    stage they read from, directly or not."""
     # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
     import networkx as nx
     from dvc.repo import Repo
 
     graph = Repo(str(tree)).index.graph  # an edge runs from a stage to one it reads from
     order = reversed(list(nx.lexicographical_topological_sort(graph, key=str)))
-    return {stage.name: k for k, stage in enumerate(order)}  # (addressing is relative to cwd)
+    rank = {stage.name: k for k, stage in enumerate(order)}  # (addressing is relative to cwd)
+    named = [n for n in graph if n.name in stages or n.name.split("@")[0] in stages]
+    needed = {n.name for stage in named for n in (stage, *nx.descendants(graph, stage))}
+    return rank, needed
 
 
 def _outputs(tree: Path, stage: str) -> list[Path]:
@@ -414,7 +425,7 @@ def relock(
         f for f in _code_files(root) if not filecmp.cmp(root / f, trees["head"] / f, shallow=False)
     ]
     if changed:  # the lock records the files as they are now, not as rehearsed
-        raise RuntimeError(f"code changed during the rehearsal: {', '.join(changed[:5])}; rerun")
+        raise ConfigError(f"code changed during the rehearsal: {', '.join(changed[:5])}; rerun")
     with Repo(str(root)) as repo:
         for stage in expanded:
             if not differs[stage]:  # only the stages whose every output is identical
@@ -470,7 +481,11 @@ def main(argv: list[str] | None = None) -> None:
         run("bgap.pipeline", lambda: _trials(args), "the trial log is written whole or not")
         return
     if args.command == "relock":
-        differs = relock(args.stages, args.base, args.work, unreproducible=args.unreproducible)
+        differs = run(
+            "bgap.pipeline",
+            lambda: relock(args.stages, args.base, args.work, unreproducible=args.unreproducible),
+            "no lock was rewritten; rerun with the same --work to reuse finished rehearsals",
+        )
         bad = {s: f for s, f in differs.items() if f}
         for stage, files in bad.items():
             print(f"{stage}: outputs differ from {args.base}'s: {', '.join(files[:5])}")
