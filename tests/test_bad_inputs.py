@@ -124,6 +124,8 @@ CASES = [
     ("train", ["agent.buffer_size=10"], r"agent\.buffer_size=10 is invalid"),
     ("train", ["profile.n_envs=0"], r"profile\.n_envs=0 is invalid"),
     ("train", ["profile.train_steps=0"], r"profile\.train_steps=0 is invalid"),
+    ("train", ["profile.eval_during_training=0"], r"profile\.eval_during_training=0 is invalid"),
+    ("train", ["profile.eval_every_episodes=-1"], r"profile\.eval_every_episodes=-1 is invalid"),
     ("train", ["mix_sampling=sometimes"], r"mix_sampling='sometimes' is invalid"),
     ("train", ["policy=clever"], r"policy='clever' is invalid"),
     ("train", ["profile=huge"], r"Could not find 'profile/huge'"),

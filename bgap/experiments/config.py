@@ -59,6 +59,18 @@ class ProfileConfig:
         )
         check(self.n_envs >= 1, "profile.n_envs", self.n_envs, "must be >= 1")
         check(self.eval_episodes >= 1, "profile.eval_episodes", self.eval_episodes, ">= 1")
+        check(
+            self.eval_every_episodes >= 0,
+            "profile.eval_every_episodes",
+            self.eval_every_episodes,
+            "must be >= 0 (0: no validation during training)",
+        )
+        check(
+            self.eval_during_training >= 1,
+            "profile.eval_during_training",
+            self.eval_during_training,
+            "must be >= 1; profile.eval_every_episodes=0 turns validation off",
+        )
         check(self.checkpoint_every >= 1, "profile.checkpoint_every", self.checkpoint_every, ">= 1")
 
 
