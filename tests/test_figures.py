@@ -79,6 +79,25 @@ def test_families_are_not_paired_and_equal_families_are_not_significant():
     assert row.hi - row.lo > 2.0
 
 
+def test_a_learner_arms_claims_join_the_main_arms_in_one_holm_family():
+    """The same study under the main arm and a learner arm (issue 32): each arm gets every
+    claim, and Holm's correction runs over both arms' rows together (each corrected p at
+    least its own p, and at least the smallest p times the number of rows)."""
+
+    def rate(family, mix, radius, seed):
+        return 0.05 if family == "default" else (0.20 if mix == 0.0 else 0.10)
+
+    main = _study(rate)
+    learner = main.assign(policy=main.policy.str.replace("main/", "learner-ppo/"))
+    alone = claims(main)
+    both = claims(parse_policies(pd.concat([main, learner], ignore_index=True)))
+    assert set(both.arm) == {"main", "learner-ppo"}
+    assert len(both) == 2 * len(alone)
+    assert (both.groupby("arm").claim.apply(set).map(frozenset).nunique()) == 1
+    assert (both.p_holm >= both.p).all()
+    assert both.p_holm.min() == pytest.approx(min(1.0, both.p.min() * len(both)))
+
+
 def test_radius_claim_and_duplicates_and_own_traffic():
     def rate(family, mix, radius, seed):
         return 0.25 if radius == 30.0 else 0.05
@@ -160,6 +179,7 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
         *episodes("main/dense/dense-behavior_rich-s{s}", 2, 28.0),
         *episodes("main/dense/dense-default-s{s}", 1, 20.0),
         *episodes("authors/dense/dense-behavior_rich-s{s}", 6, 27.0),
+        *episodes("learner-qrdqn/dense/dense-behavior_rich-s{s}", 3, 28.6),
         *episodes("rule", 4, 28.5, seeds=(0,)), *episodes("idle", 10, 25.0, seeds=(0,)),
         *episodes("random", 30, 22.0, seeds=(0,)),
     ], ignore_index=True))  # fmt: skip
@@ -176,6 +196,11 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
     assert "**beats**" in rows["bgap behavior-rich DQN, recipe (main arm)"]
     assert "trades" in rows["bgap default DQN, recipe (main arm)"]
     assert "beaten" in rows["bgap behavior-rich DQN, authors' 2020 configuration"]
+    # a learner arm (issue 32) is named by its algorithm: 3 crashes in 114.4 km (2.62 per
+    # 100 km) at 28.6 m/s beats the rule-based ego's 3.51 at 28.5
+    learner = "bgap behavior-rich QR-DQN, QR-DQN learner (its search's network, observation "
+    assert "**beats**" in rows[learner + "and recipe)"]
+    assert rate["learner-qrdqn", "behavior_rich"] == pytest.approx(3 / 114.4 * 100)
     assert speed_vs_safety(stats, tmp_path / "s.png") and (tmp_path / "s.png").stat().st_size
     # a density without a cell another density has (n = 5: mix 0.6 repeats mix 0.5) leaves
     # that panel empty instead of failing

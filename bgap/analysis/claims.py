@@ -8,12 +8,12 @@ import pandas as pd
 
 from bgap.analysis.episodes import (
     ALPHA,
-    MIXTURE_ARMS,
     _crashes,
     _distinct,
     _groups,
     _rate,
     is_replay,
+    mixture_arms,
     n_of,
 )
 from bgap.analysis.paper import CLAIMS, Claim, replay_claim
@@ -83,7 +83,7 @@ def claims(df: pd.DataFrame, seed: int = 0) -> pd.DataFrame:
     rng = np.random.default_rng(seed)
     grid = _distinct(df[df.traffic == "paper"])
     rows = []
-    for arm in [a for a in MIXTURE_ARMS if a in set(grid.arm)]:
+    for arm in mixture_arms(grid.arm):
         trained = grid[grid.arm == arm]
         for density in sorted(set(trained.density)):
             d = trained[trained.density == density]
@@ -96,7 +96,7 @@ def claims(df: pd.DataFrame, seed: int = 0) -> pd.DataFrame:
                 rows.append(_row(claim, arm, density, result))
     replayed = df[is_replay(df.traffic)]  # the same claim in observed traffic, per table
     for (arm, traffic, density), d in replayed.groupby(["arm", "traffic", "density"]):
-        if arm not in MIXTURE_ARMS:
+        if arm not in mixture_arms([arm]):
             continue
         claim = replay_claim(traffic)
         result = _test(claim, d, rng)

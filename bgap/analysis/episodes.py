@@ -44,7 +44,11 @@ def policy_parts(names: pd.Series) -> pd.DataFrame:
 METRICS = {"collision_pct": "collision %", "avg_speed": "speed m/s", "lane_changes": "lane changes"}
 KEYS = ["arm", "family", "traffic", "density", "mix", "radius"]
 MIXTURE_ARMS = ("main", "authors")
-"""Arms that train both families, behaviour-rich on the mixture of the paper's mixes."""
+"""Arms that train both families, behaviour-rich on the mixture of the paper's mixes; so does
+every learner arm (:data:`LEARNER_ARM` followed by its algorithm)."""
+LEARNER_ARM = "learner-"
+"""Prefix of the arms of issue 32's learners: ``learner-<algo>`` trains the algorithm with
+the network, observation and recipe its search chose (``results/recipe/<algo>``)."""
 ARM_NAMES = {
     "main": "recipe (main arm)",
     "authors": "authors' 2020 configuration",
@@ -52,6 +56,29 @@ ARM_NAMES = {
     "mix50": "behaviour-rich trained at 50% aggressive",
     "mix100": "behaviour-rich trained at 100% aggressive",
 }
+ALGO_NAMES = {"dqn": "DQN", "qrdqn": "QR-DQN", "ppo": "PPO"}
+
+
+def arm_algo(arm: str) -> str:
+    """The algorithm an arm trains (``DQN`` but for a learner arm's)."""
+    algo = arm[len(LEARNER_ARM) :] if arm.startswith(LEARNER_ARM) else "dqn"
+    return ALGO_NAMES.get(algo, algo)
+
+
+def arm_name(arm: str) -> str:
+    """An arm as the tables and figures name it."""
+    if arm.startswith(LEARNER_ARM):
+        return f"{arm_algo(arm)} learner (its search's network, observation and recipe)"
+    return ARM_NAMES.get(arm, arm)
+
+
+def mixture_arms(arms) -> list[str]:
+    """Those of ``arms`` that train both families on the mixture, main and authors' first."""
+    found = set(arms)
+    learners = sorted(a for a in found if isinstance(a, str) and a.startswith(LEARNER_ARM))
+    return [a for a in MIXTURE_ARMS if a in found] + learners
+
+
 ALPHA = 0.05
 
 

@@ -11,12 +11,12 @@ import pandas as pd
 
 from bgap.analysis.claims import claims, own_traffic
 from bgap.analysis.episodes import (
-    ARM_NAMES,
     METRICS,
-    MIXTURE_ARMS,
     _distinct,
+    arm_name,
     cell_stats,
     load_evaluations,
+    mixture_arms,
     n_of,
 )
 from bgap.analysis.page import readme
@@ -65,7 +65,7 @@ def fig4(stats: pd.DataFrame, per_seed: pd.DataFrame, path: Path, arm: str = "ma
             ax.set_xlabel("aggressive fraction")
             if r == 0 and c == 0:
                 ax.legend(fontsize=8)
-    fig.suptitle(f"Fig. 4 (bgap, {ARM_NAMES.get(arm, arm)}): radius {radius:g} m", fontsize=11)
+    fig.suptitle(f"Fig. 4 (bgap, {arm_name(arm)}): radius {radius:g} m", fontsize=11)
     fig.tight_layout()
     write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
@@ -119,7 +119,7 @@ def paper_vs_ours(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
         ax.set_ylabel("collisions per 100 episodes")
         ax.set_title(f"n = {n_of(density)}", fontsize=10)
     axes[0, 0].legend(fontsize=7)
-    fig.suptitle(f"The paper's bars beside ours ({ARM_NAMES.get(arm, arm)})", fontsize=11)
+    fig.suptitle(f"The paper's bars beside ours ({arm_name(arm)})", fontsize=11)
     fig.tight_layout()
     write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
@@ -240,7 +240,7 @@ def make_figures(
     write_atomic(out / "metrics.json", json.dumps(headline, indent=1, sort_keys=True))
     paths["table2"] = out / "table2.md"
     write_atomic(paths["table2"], table2(stats))
-    arms = [a for a in MIXTURE_ARMS if a in set(stats.arm)]
+    arms = mixture_arms(stats.arm)
     for arm in arms:
         name = "fig4" if arm == "main" else f"fig4_{arm}"
         paths[name] = out / "figures" / f"{name}.png"

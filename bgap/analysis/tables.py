@@ -7,7 +7,16 @@ import json
 
 import pandas as pd
 
-from bgap.analysis.episodes import ARM_NAMES, MIXTURE_ARMS, REPLAY, is_replay, n_of, policy_parts
+from bgap.analysis.episodes import (
+    LEARNER_ARM,
+    MIXTURE_ARMS,
+    REPLAY,
+    arm_algo,
+    arm_name,
+    is_replay,
+    n_of,
+    policy_parts,
+)
 from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
 from bgap.analysis.stats import versus_rule
 from bgap.common.vocab import CRASH_KINDS
@@ -33,14 +42,22 @@ def table2(stats: pd.DataFrame) -> str:
 
 
 def _arm_order(column: pd.Series) -> pd.Series:
-    order = {a: i for i, a in enumerate(["main", "authors", "mix0", "mix50", "mix100", ""])}
-    return column.map(lambda v: order.get(v, 99)) if column.name == "arm" else column
+    """Sort key of an ``arm`` column: the paper's arms, the learners' arms, the baselines."""
+    if column.name != "arm":
+        return column
+    order = {a: i for i, a in enumerate(["main", "authors", "mix0", "mix50", "mix100"])}
+    order[""] = 98  # the baselines
+
+    def key(arm: str) -> int:
+        return order.get(arm, 50 if str(arm).startswith(LEARNER_ARM) else 99)
+
+    return column.map(key)
 
 
 def _label(arm: str, family: str) -> str:
     if not arm:
         return f"{family} (baseline)"
-    return f"bgap {family.replace('_', '-')} DQN, {ARM_NAMES.get(arm, arm)}"
+    return f"bgap {family.replace('_', '-')} {arm_algo(arm)}, {arm_name(arm)}"
 
 
 def paper_comparison(stats: pd.DataFrame, arm: str = "main") -> str:
