@@ -222,12 +222,10 @@ def _limited(fn: Callable[..., Any], cpus: float, *args: Any) -> Any:
     and numba's parallel kernels wait for their slowest thread (2 one-CPU nodes on 2 cores
     ran 0.42x one node's throughput so). Results do not depend on the number of threads."""
     # Imported here: the tasks run the simulator and the learners; this module needs neither.
-    import numba
-    import torch
+    from bgap.common.threads import set_threads
 
     threads = max(1, int(cpus))
-    torch.set_num_threads(threads)
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    set_threads(threads, threads)
     return fn(*args)
 
 

@@ -39,6 +39,7 @@ from bgap.common.cluster import (
 )
 from bgap.common.errors import ConfigError, Interrupted, check
 from bgap.common.runs import CHECKPOINT_STATE, digest, exclusive, pack, unpack, write_atomic
+from bgap.common.threads import set_threads
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
@@ -240,7 +241,7 @@ class _Members:
         self.p, self.first = cfgs[0].profile, cfgs[0]
         self.e = e = self.p.n_envs
         if self.first.threads:
-            torch.set_num_threads(self.first.threads)
+            set_threads(self.first.threads)
         self.groups = self._make_groups()
         self.space = space = self.groups[0].venv.single_observation_space
         action_space = self.groups[0].venv.single_action_space

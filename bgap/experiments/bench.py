@@ -266,14 +266,14 @@ def bench_evaluate(seconds: float, episodes: int = 100) -> None:
     one's does). The episodes are the same (tests/test_sim.py); ``seconds`` bounds each
     measurement's repetitions."""
     # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
-    import torch
 
     from bgap.agents.policies import rollout
+    from bgap.common.threads import set_threads
     from bgap.experiments.train import make_training_env
     from bgap.experiments.training import build_model
     from bgap.sim.vector import VectorHighway
 
-    torch.set_num_threads(1)  # as bgap.evaluate's workers
+    set_threads(1)  # as bgap.evaluate's workers
 
     def rate(config: dict, policy, skip: bool) -> tuple[float, float]:
         VectorHighway.skips_finished = skip

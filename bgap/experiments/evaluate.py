@@ -45,6 +45,7 @@ from bgap.common.runs import (
     write_atomic,
 )
 from bgap.common.tables import read_table
+from bgap.common.threads import set_threads
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.traffic.replay import load_replay
@@ -169,11 +170,7 @@ _MODELS: dict[str, Any] = {}
 
 
 def _one_thread() -> None:
-    import numba
-    import torch
-
-    torch.set_num_threads(1)
-    numba.set_num_threads(1)
+    set_threads(1, 1)
 
 
 def _evaluate_cached(name: str, spec: Any, *rest: Any) -> list:

@@ -40,11 +40,9 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import numba
 import numpy as np
 import optuna
 import pandas as pd
-import torch
 from omegaconf import DictConfig
 
 from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
@@ -53,6 +51,7 @@ from bgap.common.errors import Interrupted
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
+from bgap.common.threads import set_threads
 from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
 from bgap.experiments.evaluate import crash_split
@@ -132,8 +131,7 @@ def check_all(
 
 
 def _check_worker(cfg: RecipeConfig, v: Variant, seed: int, root: Path) -> dict[str, Any]:
-    torch.set_num_threads(1)  # one process per core: threads would oversubscribe them
-    numba.set_num_threads(1)
+    set_threads(1, 1)  # one process per core: threads would oversubscribe them
     return check_seed(cfg, v, seed, root, progress=False)
 
 

@@ -52,6 +52,7 @@ from bgap.common.cluster import (
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
 from bgap.common.runs import CHECKPOINT_STATE, exclusive, held_by_parent, pack, unpack, write_atomic
+from bgap.common.threads import set_threads
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
@@ -118,7 +119,7 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
         return run_dir
     ckpt = run_dir / "checkpoints"
     resuming = status == "resume"
-    torch.set_num_threads(1)  # small MLP: threads cost more than they give; keeps runs exact
+    set_threads(1)  # small MLP: threads cost more than they give
     env = make_training_env(cfg, cfg.profile.n_envs, cfg.seed)
     p = cfg.profile
     monitor = TrainingMonitor(
@@ -276,7 +277,7 @@ def _task_folder_name(cfg: ExperimentConfig) -> str:
 
 def _train_worker(cfg: ExperimentConfig, held: list[Path]) -> Path:
     held_by_parent(held)  # train_side_by_side locked the run folders for this process
-    torch.set_num_threads(1)
+    set_threads(1)
     return train(cfg, progress=False)
 
 
