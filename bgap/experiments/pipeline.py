@@ -181,8 +181,13 @@ def rehearsal(params: dict) -> None:
     params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
     if "learner_recipe" in params:  # (commits before issue 32's searches have none)
         learner = params["learner_recipe"]
-        learner.update(profile="tiny", trials=2, candidates=1, check_episodes=10)
+        learner.update(trials=2, candidates=1, check_episodes=10)
         learner.update(check_seeds="[0,1]", sweep_episodes=4)
+        if "profile" in learner:  # (before each learner named its own profile)
+            learner["profile"] = "tiny"
+        for item in params["learners"].values():
+            if "profile" in item:
+                item["profile"] = "tiny"
     params["parity"] = {"episodes": 2, "duration": 2}
     params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
     if "replay" in params:  # (commits before issue 37's replay cells have none)
