@@ -198,8 +198,9 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
     assert "beaten" in rows["bgap behavior-rich DQN, authors' 2020 configuration"]
     # a learner arm (issue 32) is named by its algorithm: 3 crashes in 114.4 km (2.62 per
     # 100 km) at 28.6 m/s beats the rule-based ego's 3.51 at 28.5
-    learner = "bgap behavior-rich QR-DQN, QR-DQN learner (its search's network, observation "
-    assert "**beats**" in rows[learner + "and recipe)"]
+    learner = ("bgap behavior-rich QR-DQN, QR-DQN learner (its search's network, observation "
+               "and recipe)")  # fmt: skip
+    assert "**beats**" in rows[learner]
     assert rate["learner-qrdqn", "behavior_rich"] == pytest.approx(3 / 114.4 * 100)
     assert speed_vs_safety(stats, tmp_path / "s.png") and (tmp_path / "s.png").stat().st_size
     # a density without a cell another density has (n = 5: mix 0.6 repeats mix 0.5) leaves

@@ -266,7 +266,6 @@ def bench_evaluate(seconds: float, episodes: int = 100) -> None:
     one's does). The episodes are the same (tests/test_sim.py); ``seconds`` bounds each
     measurement's repetitions."""
     # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
-
     from bgap.agents.policies import rollout
     from bgap.common.threads import set_threads
     from bgap.experiments.train import make_training_env
