@@ -39,9 +39,10 @@ def _searched(tmp_path, trials: int = 7) -> str:
 
 def _view(study: optuna.Study) -> list[tuple]:
     return [
-        (t.number, t.state, t.params, t.values, t.user_attrs, t.intermediate_values)
+        (t.number, t.state, t.params, t.values, t.user_attrs, t.intermediate_values,
+         t.datetime_start, t.datetime_complete)
         for t in study.trials
-    ]
+    ]  # fmt: skip
 
 
 def test_a_restored_study_holds_the_lost_ones_trials_and_continues_after_them(tmp_path):
@@ -57,6 +58,10 @@ def test_a_restored_study_holds_the_lost_ones_trials_and_continues_after_them(tm
     assert back.best_params == lost.best_params and back.best_value == lost.best_value
     assert back.user_attrs == lost.user_attrs
     assert back.trials[0].distributions == lost.trials[0].distributions
+    # the times came back with the trials: the search's wall time outlives its database
+    ran = sum((t.datetime_complete - t.datetime_start).total_seconds() for t in lost.trials)
+    hours, timed = trial_log.trial_hours(tmp_path / "log.json")
+    assert timed == 7 and hours == pytest.approx(ran / 3600) and ran > 0
 
     # the search's own loop counts what came back (5 complete): asked for 8, it plays 3
     # trials more, numbered after the restored ones, not 8 from the start

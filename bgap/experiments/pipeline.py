@@ -447,7 +447,9 @@ def _trials(args: Any) -> None:
         if not args.study:
             raise ConfigError("trials save needs --study NAME (the search's study name)")
         n = trial_log.save(storage, args.study, args.log)
-        print(f"{n} finished trials of {args.study} -> {args.log}")
+        hours, timed = trial_log.trial_hours(args.log)
+        print(f"{n} finished trials of {args.study} -> {args.log} ({hours:.2f} h of trial time "
+              f"over the {timed} whose times are known)")  # fmt: skip
     else:
         n = trial_log.restore(storage, args.log)
         print(f"{n} trials from {args.log} -> {storage}; rerun the search's command to continue")

@@ -14,6 +14,7 @@ write, and is the database itself, not a record of results).
 from __future__ import annotations
 
 import json
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -64,7 +65,18 @@ def _trial(t: optuna.trial.FrozenTrial) -> dict[str, Any]:
         "user_attrs": t.user_attrs,
         "system_attrs": t.system_attrs,
         "intermediate_values": {str(k): v for k, v in t.intermediate_values.items()},
+        # when it ran: a search's wall time survives its database (ISO 8601, local time)
+        "datetime_start": _iso(t.datetime_start),
+        "datetime_complete": _iso(t.datetime_complete),
     }
+
+
+def _iso(when: datetime | None) -> str | None:
+    return None if when is None else when.isoformat()
+
+
+def _when(text: str | None) -> datetime | None:
+    return None if text is None else datetime.fromisoformat(text)
 
 
 def save(storage: str, study: str, path: str | Path) -> int:
@@ -110,15 +122,30 @@ def restore(storage: str, path: str | Path) -> int:
         s.set_user_attr(key, value)
     for t in sorted(trials, key=lambda t: t["number"]):
         state = TrialState[t["state"]]
-        s.add_trial(
-            optuna.trial.create_trial(
-                state=state,
-                params=t["params"],
-                distributions={k: json_to_distribution(d) for k, d in t["distributions"].items()},
-                values=t["values"],  # a pruned trial keeps its last reported value
-                user_attrs=t["user_attrs"],
-                system_attrs=t["system_attrs"],
-                intermediate_values={int(k): v for k, v in t["intermediate_values"].items()},
-            )
+        trial = optuna.trial.create_trial(
+            state=state,
+            params=t["params"],
+            distributions={k: json_to_distribution(d) for k, d in t["distributions"].items()},
+            values=t["values"],  # a pruned trial keeps its last reported value
+            user_attrs=t["user_attrs"],
+            system_attrs=t["system_attrs"],
+            intermediate_values={int(k): v for k, v in t["intermediate_values"].items()},
         )
+        if t.get("datetime_start"):  # (logs written before they kept the times have none)
+            trial.datetime_start = _when(t["datetime_start"])
+            trial.datetime_complete = _when(t.get("datetime_complete"))
+        s.add_trial(trial)
     return len(trials)
+
+
+def trial_hours(path: str | Path) -> tuple[float, int]:
+    """The summed running time of the trials logged in ``path``, in hours, and how many
+    trials it counts: those with both times, the second later (a trial restored from a log
+    that kept no times starts and ends at its restoring)."""
+    spans = [
+        (_when(t["datetime_complete"]) - _when(t["datetime_start"])).total_seconds()
+        for t in json.loads(Path(path).read_text())["trials"]
+        if t.get("datetime_start") and t.get("datetime_complete")
+    ]
+    timed = [s for s in spans if s > 0]
+    return sum(timed) / 3600, len(timed)
