@@ -210,6 +210,54 @@ def test_policies_are_read_against_the_rule_based_ego_per_kilometre(tmp_path):
     assert speed_vs_safety(both, tmp_path / "t.png")
 
 
+def test_issue_32s_two_rules_are_read_per_arm_with_its_headline_verdict():
+    """The yardstick table: a learner whose behaviour-rich policy has 1 crash in 2 x 100
+    dense episodes at 28 m/s (1 / 224 km = 0.45 per 100 km) against the rule-based ego's 4
+    in 100 at 28.5 (3.51 per 100 km), and whose default policy crashes in 1% of stock
+    episodes (rule-based ego 0%, margin 1 point) at 21 m/s (floor 0.95 x 22 = 20.9), meets
+    both rules; the main arm (4 and 3 crashes at 24 m/s, under 0.95 x 28.5; default 5% in
+    stock) meets neither. Each arm's headline verdict comes from the claims table."""
+    from bgap.analysis.paper import HEADLINE
+    from bgap.analysis.tables import yardstick_markdown
+
+    def episodes(policy, crashes, speed, traffic="paper", seeds=(0, 1)):
+        frames = []
+        for s in seeds:
+            crashed = np.zeros(100, bool)
+            crashed[:crashes] = True
+            frames.append(pd.DataFrame({
+                "policy": policy.format(s=s), "mix": 0.5 if traffic == "paper" else 0.0,
+                "density": "dense", "radius": 180.0, "seed": np.arange(100),
+                "crashed": crashed, "avg_speed": speed, "lane_changes": 0, "steps": 40,
+                "distance": speed * 40.0, "traffic": traffic,
+            }))  # fmt: skip
+        return frames
+
+    df = parse_policies(pd.concat([
+        *episodes("learner-ppo/dense/dense-behavior_rich-s{s}", 1, 28.0, seeds=(0,)),
+        *episodes("learner-ppo/dense/dense-behavior_rich-s{s}", 0, 28.0, seeds=(1,)),
+        *episodes("learner-ppo/dense/dense-default-s{s}", 1, 21.0, traffic="stock"),
+        *episodes("main/dense/dense-behavior_rich-s{s}", 4, 24.0),
+        *episodes("main/dense/dense-default-s{s}", 5, 21.0, traffic="stock"),
+        *episodes("rule", 4, 28.5, seeds=(0,)),
+        *episodes("rule", 0, 22.0, traffic="stock", seeds=(0,)),
+    ], ignore_index=True))  # fmt: skip
+    stats, _ = cell_stats(df)
+    other = "behaviour-rich drives faster at 100% than at 0% aggressive"
+    headline = pd.DataFrame({"claim": [HEADLINE, HEADLINE, other],
+                             "arm": ["learner-ppo", "main", "learner-ppo"], "n": [40, 40, 40],
+                             "verdict": ["holds", "contradicted", "not significant"]})  # fmt: skip
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ")
+            for line in yardstick_markdown(stats, headline).splitlines()}  # fmt: skip
+    ppo = rows["PPO learner (its search's network, observation and recipe)"]
+    assert ppo[1] == "0.4 per 100 km at 28.00" and ppo[3] == "**yes**"
+    assert ppo[4] == "1.0% at 21.00" and ppo[5] == "0.0% at 22.00" and ppo[6] == "**yes**"
+    assert ppo[-1].strip(" |") == "holds"  # only the headline claim's verdict
+    main = rows["recipe (main arm)"]
+    assert main[3].startswith("no") and main[6] == "no"
+    assert main[-1].strip(" |") == "contradicted"
+
+
 def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):
     """An evaluation folder of replay cells (bgap.evaluate's ``replay`` column), read beside a
     simulated study: its rows become traffic ``replay/<table>/<mode>``, never a duplicate of

@@ -38,11 +38,15 @@ class Claim:
     densities: tuple[str, ...] = ("sparse", "dense")
 
 
+HEADLINE = "behaviour-rich collides less than default (all mixes)"
+"""The paper's headline claim, as the claims table names it."""
+
+
 def _claims_for(radii: list[float], mixes: list[float]) -> list[Claim]:
     r = max(radii)
     mixed = [m for m in mixes if 0.0 < m < 1.0]
     out = [
-        Claim("behaviour-rich collides less than default (all mixes)", "Fig. 4", "collision_pct",
+        Claim(HEADLINE, "Fig. 4", "collision_pct",
               {"family": "behavior_rich", "radius": r}, {"family": "default", "radius": r},
               -1, "unpaired", "n=40: 27/36/4 vs 65/70/30; n=5: 5/14/3 vs 21/31/11"),
         Claim("behaviour-rich collides less at 0% than in mixed traffic", "Fig. 4",

@@ -17,8 +17,8 @@ from bgap.analysis.episodes import (
     n_of,
     policy_parts,
 )
-from bgap.analysis.paper import PAPER_CRASHES, PAPER_SPEED, TABLE_II
-from bgap.analysis.stats import versus_rule
+from bgap.analysis.paper import HEADLINE, PAPER_CRASHES, PAPER_SPEED, TABLE_II
+from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, versus_rule
 from bgap.common.vocab import CRASH_KINDS
 
 
@@ -228,6 +228,71 @@ def rule_markdown(stats: pd.DataFrame) -> str:
         order = sorted(lines[3:], key=lambda line: ("(baseline)" in line, line))
         parts.append("\n".join(lines[:3] + order) + "\n")
     return "\n".join(parts) if parts else "(no rule-based ego in the evaluations)\n"
+
+
+def _pooled(stats: pd.DataFrame, density: str) -> pd.DataFrame:
+    """Per (arm, family): the mean over the paper's cells of one density (largest radius,
+    repeated cells left out) of collisions per 100 km and mean speed, as
+    :func:`rule_markdown`'s pooled column."""
+    g = stats[(stats.traffic == "paper") & stats.duplicate_of.isna() & (stats.density == density)]
+    g = g[g.radius == g.radius.max()]
+    return g.groupby(["arm", "family"])[["per_100km", "avg_speed"]].mean()
+
+
+def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame) -> str:
+    """Issue 32's question per arm that trains both families on the mixture: does its
+    behaviour-rich policy beat the rule-based ego in the paper's dense traffic (pooled over
+    the cells: fewer collisions per 100 km at :data:`RULE_FLOOR` x its speed), and does its
+    default policy keep up with it in stock traffic (collision % at most
+    :data:`STOCK_MARGIN` points above its, at :data:`RULE_FLOOR` x its speed)? Beside
+    them, the sparse cells judged the same way (reported, not a rule) and the arm's verdict
+    on the paper's headline claim, so the claim can be read with a learner that drives as
+    well as the hand-built driver."""
+    if "per_100km" not in stats or stats.empty:
+        return "(the evaluations hold no distance travelled: evaluate again)\n"
+    arms = [a for a in MIXTURE_ARMS if a in set(stats.arm)]
+    arms += sorted(a for a in set(stats.arm) if str(a).startswith(LEARNER_ARM))
+    dense, sparse = _pooled(stats, "dense"), _pooled(stats, "sparse")
+    stock = stats[(stats.traffic == "stock") & (stats.density == "dense")]
+    stock = stock[stock.radius == stock.radius.max()].set_index(["arm", "family"])
+    headline = claims[claims.claim == HEADLINE]
+    lines = [
+        "| arm | behaviour-rich, dense (pooled) | rule-based ego | beats it? | default, "
+        "stock traffic (dense) | rule-based ego | keeps up? | behaviour-rich, sparse "
+        "(pooled, reported) | headline claim (n = 40 / n = 5) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for arm in arms:
+        cells = []
+        if (arm, "behavior_rich") in dense.index and ("", "rule") in dense.index:
+            p, r = dense.loc[(arm, "behavior_rich")], dense.loc[("", "rule")]
+            verdict = versus_rule(p.per_100km, p.avg_speed, r.per_100km, r.avg_speed)
+            cells += [f"{p.per_100km:.1f} per 100 km at {p.avg_speed:.2f}",
+                      f"{r.per_100km:.1f} at {r.avg_speed:.2f}",
+                      "**yes**" if verdict == "beats" else f"no ({verdict})"]  # fmt: skip
+        else:
+            cells += ["-", "-", "-"]
+        if (arm, "default") in stock.index and ("", "rule") in stock.index:
+            p, r = stock.loc[(arm, "default")], stock.loc[("", "rule")]
+            keeps = (
+                p.collision_pct <= r.collision_pct + STOCK_MARGIN
+                and p.avg_speed >= RULE_FLOOR * r.avg_speed
+            )
+            cells += [f"{p.collision_pct:.1f}% at {p.avg_speed:.2f}",
+                      f"{r.collision_pct:.1f}% at {r.avg_speed:.2f}",
+                      "**yes**" if keeps else "no"]  # fmt: skip
+        else:
+            cells += ["-", "-", "-"]
+        if (arm, "behavior_rich") in sparse.index and ("", "rule") in sparse.index:
+            p, r = sparse.loc[(arm, "behavior_rich")], sparse.loc[("", "rule")]
+            verdict = versus_rule(p.per_100km, p.avg_speed, r.per_100km, r.avg_speed)
+            cells.append(f"{p.per_100km:.1f} at {p.avg_speed:.2f} ({verdict})")
+        else:
+            cells.append("-")
+        verdicts = headline[headline.arm == arm].sort_values("n", ascending=False).verdict
+        cells.append(" / ".join(verdicts) if len(verdicts) else "-")
+        lines.append(f"| {arm_name(arm)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def replay_markdown(stats: pd.DataFrame) -> str:
