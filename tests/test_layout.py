@@ -209,6 +209,23 @@ def test_the_replay_cells_in_params_name_every_replayed_table():
     assert params["replay"]["cells"] == replay_cells(params)
 
 
+def test_a_rehearsal_trains_every_arm_at_the_tiny_profile():
+    """The rehearsal's budget reaches every training stage: the main study follows the
+    top-level profile, each learner arm names its own (issue 32), and both become tiny with
+    one seed, so that a relock never trains at a real budget."""
+    import yaml
+
+    from bgap.experiments.pipeline import rehearsal
+
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    assert params["learner_arms"]  # the arms this checks
+    rehearsal(params)
+    assert params["profile"] == "tiny"
+    for entry in (*params["study"].values(), *params["learner_arms"].values()):
+        assert entry["seeds"] == "[0]" and entry.get("profile", "tiny") == "tiny"
+    assert all(item["profile"] == "tiny" for item in params["learners"].values())
+
+
 def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     """dvc.yaml lists a reader before the stage that writes what it reads (as replay_data
     after evaluate_baselines): the rehearsal's order puts the writer first anyway, and a

@@ -13,10 +13,12 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-RERUNNING = {f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")}
+RERUNNING = {f"recipe_learner@{algo}" for algo in ("dqn", "qrdqn", "ppo")} | {
+    f"train_learner@learner-dqn-{density}" for density in ("sparse", "dense")
+}
 """Stages whose committed lock predates code that changes what they compute, being rerun,
-or not run yet: issue 32's recipe per learner. Each must still be stale (a rerun stage
-leaves this set in the same commit); no other stage may be."""
+or not run yet: issue 32's recipe per learner and its learner arms. Each must still be
+stale (a rerun stage leaves this set in the same commit); no other stage may be."""
 
 
 def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_path):

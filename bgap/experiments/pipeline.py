@@ -176,6 +176,8 @@ def rehearsal(params: dict) -> None:
     validate = " profile.eval_every_episodes=2 profile.eval_during_training=2"
     for item in params["study"].values():
         item.update(seeds="[0]", settings=item["settings"] + validate)
+    for item in params.get("learner_arms", {}).values():  # (none before issue 32's arms)
+        item.update(seeds="[0]", settings=item["settings"] + validate, profile="tiny")
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
