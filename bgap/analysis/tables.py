@@ -193,8 +193,7 @@ def rule_markdown(stats: pd.DataFrame) -> str:
     the cells (the mean of their rates and speeds) and judges the pool the same way."""
     if "per_100km" not in stats:
         return "(the evaluations hold no distance travelled: evaluate again)\n"
-    g = stats[(stats.traffic == "paper") & stats.duplicate_of.isna()]
-    g = g[g.radius == g.radius.max()] if len(g) else g
+    g = _rule_cells(stats)
     parts = []
     for density in [d for d in ("sparse", "dense") if d in set(g.density)]:
         here = g[g.density == density]
@@ -230,13 +229,27 @@ def rule_markdown(stats: pd.DataFrame) -> str:
     return "\n".join(parts) if parts else "(no rule-based ego in the evaluations)\n"
 
 
+def _rule_cells(stats: pd.DataFrame) -> pd.DataFrame:
+    """The cells policies are read against the rule-based ego in: the paper's traffic at
+    its largest radius, cells that repeat another's traffic left out."""
+    g = stats[(stats.traffic == "paper") & stats.duplicate_of.isna()]
+    return g[g.radius == g.radius.max()] if len(g) else g
+
+
 def _pooled(stats: pd.DataFrame, density: str) -> pd.DataFrame:
-    """Per (arm, family): the mean over the paper's cells of one density (largest radius,
-    repeated cells left out) of collisions per 100 km and mean speed, as
-    :func:`rule_markdown`'s pooled column."""
-    g = stats[(stats.traffic == "paper") & stats.duplicate_of.isna() & (stats.density == density)]
-    g = g[g.radius == g.radius.max()]
+    """Per (arm, family): the mean over :func:`_rule_cells` of one density of collisions
+    per 100 km and mean speed, :func:`rule_markdown`'s pooled column."""
+    g = _rule_cells(stats)
+    g = g[g.density == density]
     return g.groupby(["arm", "family"])[["per_100km", "avg_speed"]].mean()
+
+
+def _beside_rule(table: pd.DataFrame, arm: str, family: str):
+    """(the policy's row, the rule-based ego's row) of ``table`` (indexed by arm and
+    family), or None where either is missing."""
+    if (arm, family) in table.index and ("", "rule") in table.index:
+        return table.loc[(arm, family)], table.loc[("", "rule")]
+    return None
 
 
 def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame) -> str:
@@ -263,17 +276,15 @@ def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for arm in arms:
-        cells = []
-        if (arm, "behavior_rich") in dense.index and ("", "rule") in dense.index:
-            p, r = dense.loc[(arm, "behavior_rich")], dense.loc[("", "rule")]
+        cells = ["-", "-", "-"]
+        if pair := _beside_rule(dense, arm, "behavior_rich"):
+            p, r = pair
             verdict = versus_rule(p.per_100km, p.avg_speed, r.per_100km, r.avg_speed)
-            cells += [f"{p.per_100km:.1f} per 100 km at {p.avg_speed:.2f}",
-                      f"{r.per_100km:.1f} at {r.avg_speed:.2f}",
-                      "**yes**" if verdict == "beats" else f"no ({verdict})"]  # fmt: skip
-        else:
-            cells += ["-", "-", "-"]
-        if (arm, "default") in stock.index and ("", "rule") in stock.index:
-            p, r = stock.loc[(arm, "default")], stock.loc[("", "rule")]
+            cells = [f"{p.per_100km:.1f} per 100 km at {p.avg_speed:.2f}",
+                     f"{r.per_100km:.1f} at {r.avg_speed:.2f}",
+                     "**yes**" if verdict == "beats" else f"no ({verdict})"]  # fmt: skip
+        if pair := _beside_rule(stock, arm, "default"):
+            p, r = pair
             keeps = (
                 p.collision_pct <= r.collision_pct + STOCK_MARGIN
                 and p.avg_speed >= RULE_FLOOR * r.avg_speed
@@ -283,8 +294,8 @@ def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame) -> str:
                       "**yes**" if keeps else "no"]  # fmt: skip
         else:
             cells += ["-", "-", "-"]
-        if (arm, "behavior_rich") in sparse.index and ("", "rule") in sparse.index:
-            p, r = sparse.loc[(arm, "behavior_rich")], sparse.loc[("", "rule")]
+        if pair := _beside_rule(sparse, arm, "behavior_rich"):
+            p, r = pair
             verdict = versus_rule(p.per_100km, p.avg_speed, r.per_100km, r.avg_speed)
             cells.append(f"{p.per_100km:.1f} at {p.avg_speed:.2f} ({verdict})")
         else:
