@@ -14,7 +14,6 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 RERUNNING = {
-    "recipe_learner@dqn",
     "recipe_learner@qrdqn",
     "recipe_learner@ppo",
     "train_learner@learner-dqn-sparse",
