@@ -17,7 +17,6 @@ RERUNNING = {
     "recipe_learner@qrdqn",
     "recipe_learner@ppo",
     "train_learner@learner-dqn-sparse",
-    "train_learner@learner-dqn-dense",
 }
 """Stages whose committed lock predates code that changes what they compute, being rerun,
 or not run yet: issue 32's recipe per learner and its learner arms. Each must still be
