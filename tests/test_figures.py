@@ -119,6 +119,39 @@ def test_radius_claim_and_duplicates_and_own_traffic():
     assert own.loc["behavior_rich", "n_episodes"] == 6 * 6 * 200  # six distinct mixes
 
 
+def test_a_radius_that_changes_nothing_is_not_significant():
+    """A policy that drives every scene alike at 30 m and 180 m (the same crashes in the same
+    scenes): the radius claim's difference is 0, its interval has width around 0, and it
+    is not significant (it once read 'contradicted': all-zero differences taken for a
+    rate of 0 events)."""
+    df = _study(lambda family, mix, radius, seed: 0.1, seeds=5)
+    far = df[df.radius == 180.0]
+    df = pd.concat([far, far.assign(radius=30.0)], ignore_index=True)
+    row = (
+        claims(df)
+        .set_index("claim")
+        .loc["behaviour-rich collides more with a 30 m than a 180 m perception radius"]
+    )
+    assert row.difference == 0.0 and row.lo < 0.0 < row.hi
+    assert row.p > 0.5 and row.verdict == "not significant"
+
+
+def test_the_scene_bootstrap_matches_the_dirichlet_posterior_of_one_seed():
+    """One seed, 40 scenes crash only at the first setting, 10 only at the second, 150 at
+    both or neither: the draws are the Dirichlet(40.5, 150.5, 10.5) posterior's
+    p1 - p3, in points: mean 100 * 30 / 201.5 and its closed-form spread."""
+    from bgap.analysis.claims import scene_crash_bootstrap
+
+    d = np.r_[np.full(40, 100.0), np.zeros(150), np.full(10, -100.0)]
+    observed, dist = scene_crash_bootstrap([d], np.random.default_rng(0), draws=40_000)
+    assert observed == pytest.approx(15.0)
+    a = np.array([40.5, 150.5, 10.5])
+    p = a / a.sum()
+    var = (p[0] * (1 - p[0]) + p[2] * (1 - p[2]) + 2 * p[0] * p[2]) / (a.sum() + 1)
+    assert dist.mean() == pytest.approx(100 * (p[0] - p[2]), abs=0.1)
+    assert dist.std() == pytest.approx(100 * np.sqrt(var), rel=0.03)
+
+
 def test_the_ablation_compares_one_training_mix_with_the_mixture():
     """An arm trained at 100% aggressive that crashes at 30% wherever traffic is mixed, 0% at
     100%, against the mixture's 5% everywhere: worse over all test mixes, not at its own."""
