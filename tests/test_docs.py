@@ -50,6 +50,7 @@ def _sphinx(builder: str, out: Path, doctrees: Path, *options: str) -> str:
     return output
 
 
+@pytest.mark.slow  # 90 s on 2 cores; the examples' build below reads every page too
 def test_the_docs_build_with_warnings_as_errors(tmp_path, doctrees):
     _sphinx("html", tmp_path / "html", doctrees, "-W", "--keep-going", "-q")
     html = tmp_path / "html"

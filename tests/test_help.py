@@ -2,14 +2,15 @@
 
 ``python -m bgap.<command> --help`` must exit 0 and fit on a screen (at most 40 lines: what
 the command does, its main options with their defaults, where the full config is
-documented). The commands start in parallel, one process each, since most of the time is
-each interpreter importing its command.
+documented). Each command runs as ``python -m`` runs it (``runpy``, its module as
+``__main__``), in this process: a process per command spent most of its time importing torch
+again (15 commands, 90 s of CPU). ``tests/test_layout.py`` runs commands in processes of
+their own.
 """
 
 from __future__ import annotations
 
-import os
-import subprocess
+import runpy
 import sys
 from pathlib import Path
 
@@ -37,38 +38,26 @@ COMMANDS = (
 MAX_LINES = 40
 
 
-@pytest.fixture(scope="module")
-def answers(tmp_path_factory) -> dict[str, tuple[int, str]]:
-    """Each command's exit status and output (stdout and stderr), all run at once, from an
-    empty folder so that nothing a command might write lands in the repository."""
-    cwd = tmp_path_factory.mktemp("help")
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "COLUMNS": "100"}
-    running = {
-        cmd: subprocess.Popen(
-            [sys.executable, "-m", cmd, "--help"],
-            cwd=cwd,
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-        )
-        for cmd in COMMANDS
-    }
-    done = {}
-    for cmd, proc in running.items():
-        try:
-            out, _ = proc.communicate(timeout=300)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            out, _ = proc.communicate()
-            out = f"(no answer within 300 s)\n{out}"
-        done[cmd] = (proc.returncode, out)
-    return done
+def _help(command: str, capsys) -> tuple[int, str]:
+    """``python -m <command> --help``'s exit status and output (stdout and stderr)."""
+    argv = sys.argv
+    sys.argv = [command, "--help"]
+    try:
+        runpy.run_module(command, run_name="__main__", alter_sys=True)
+        status = 0
+    except SystemExit as done:
+        status = done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
+    finally:
+        sys.argv = argv
+    out = capsys.readouterr()
+    return status, out.out + out.err
 
 
 @pytest.mark.parametrize("command", COMMANDS)
-def test_help_exits_0_in_at_most_40_lines(command, answers):
-    status, out = answers[command]
+def test_help_exits_0_in_at_most_40_lines(command, capsys, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # nothing a command might write lands in the repository
+    monkeypatch.setenv("COLUMNS", "100")
+    status, out = _help(command, capsys)
     lines = out.rstrip("\n").splitlines()
     assert status == 0, f"python -m {command} --help exited {status}:\n{out[-3000:]}"
     assert lines, f"python -m {command} --help printed nothing"
@@ -76,6 +65,7 @@ def test_help_exits_0_in_at_most_40_lines(command, answers):
         f"python -m {command} --help printed {len(lines)} lines (at most {MAX_LINES}):\n"
         + "\n".join(lines[:60])
     )
+    assert not any(tmp_path.iterdir()), f"{command} --help wrote {list(tmp_path.iterdir())}"
 
 
 def test_the_list_is_the_readmes_commands_table():
