@@ -53,6 +53,9 @@ def _help(command: str, capsys) -> tuple[int, str]:
     return status, out.out + out.err
 
 
+# runpy's note when a command's package imported the command's module first (bgap.cmetric
+# imports bgap.cmetric.boundary): python -m runs it afresh all the same
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules after import of package")
 @pytest.mark.parametrize("command", COMMANDS)
 def test_help_exits_0_in_at_most_40_lines(command, capsys, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)  # nothing a command might write lands in the repository
