@@ -20,16 +20,17 @@ STAGES = {"calibrate", "recipe", "train", "replay_data", "evaluate", "evaluate_b
 
 def _tiny(params: dict) -> None:
     params.update(profile="tiny", grid="tiny", eval_episodes=4)
-    # the study in miniature: both arms (the ablation arms train the same way, with one
-    # family: tests/test_figures.py), sparse only, one seed each;
+    # the study in miniature: the main arm (the other arms are the same stages with other
+    # parameters; several arms' figures and claims: tests/test_figures.py), sparse only, one
+    # seed;
     # periodic validations so that each training selects a checkpoint
     validate = " profile.eval_every_episodes=2 profile.eval_during_training=4"
     params["study"] = {
         key: {**value, "seeds": "[0]", "settings": value["settings"] + validate}
         for key, value in params["study"].items()
-        if key in ("main-sparse", "authors-sparse")
+        if key == "main-sparse"
     }
-    params["arms"] = ["main", "authors"]
+    params["arms"] = ["main"]
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts
@@ -65,7 +66,6 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     for name in (
         "outputs/pipeline/runs/main/sparse/sparse-behavior_rich-s0/best_model.zip",
         "outputs/pipeline/runs/main/sparse/sparse-default-s0/best_model.zip",
-        "outputs/pipeline/runs/authors/sparse/sparse-default-s0/best_model.zip",
         "dvc.lock",
     ):
         assert (pipeline / name).stat().st_size > 0, name
@@ -85,7 +85,7 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     parts = episodes.policy.str.extract(r"^(?:([a-z0-9]+)/[a-z]+/)?[a-z]+-(behavior_rich|default)")
     episodes["arm"] = parts[0].fillna("")
     episodes["family"] = parts[1].fillna(episodes.policy)
-    assert set(episodes.arm) == {"", "main", "authors"}
+    assert set(episodes.arm) == {"", "main"}
     cells = pd.read_csv(pipeline / "results/cells.csv")
     cells["arm"] = cells.arm.fillna("")
     assert set(cells.traffic) == {"paper", "stock", "replay/sumo-idm-sparse/log",
@@ -104,19 +104,18 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     main = cells[(cells.arm == "main") & (cells.family == "behavior_rich") & (cells.mix == 1.0)]
     assert f"recipe (main arm) | {main.collision_pct.iloc[0]:.2f} [" in table2
     assert "| idle (baseline) |" in table2 and "| rule (baseline) |" in table2
-    # claims: both arms, Holm-corrected, sample sizes in their own columns
+    # claims: Holm-corrected, sample sizes in their own columns
     claims = pd.read_csv(pipeline / "results/claims.csv")
-    assert set(claims.arm) == {"main", "authors"}
+    assert set(claims.arm) == {"main"}
     assert (claims.p_holm >= claims.p).all() and {"n_seeds_a", "n_episodes_a"} <= set(claims)
     assert set(claims.verdict) <= {"holds", "contradicted", "not significant"}
-    assert (claims.figure == "replay").sum() == 2 * 2  # both arms, both modes
+    assert (claims.figure == "replay").sum() == 2  # both modes
     own = pd.read_csv(pipeline / "results/own_traffic.csv")
     assert set(zip(own.arm, own.family, strict=True)) == {
-        ("main", "behavior_rich"), ("main", "default"), ("authors", "behavior_rich"),
-        ("authors", "default"),
+        ("main", "behavior_rich"), ("main", "default")
     }  # fmt: skip
     assert "Checkpoints the trainings kept" in (pipeline / "results/README.md").read_text()
-    for name in ("fig4_authors.png", "paper_vs_ours.png"):
+    for name in ("fig4.png", "paper_vs_ours.png"):
         assert (pipeline / "results/figures" / name).stat().st_size > 0
     # Fig. 4 draws both families (green and grey); Fig. 6 one colour per radius
     fig4 = pipeline / "results/figures/fig4.png"
@@ -141,7 +140,7 @@ def test_a_second_repro_does_nothing_and_a_parameter_marks_only_its_stages(pipel
         changed = json.loads(run(["dvc", "status", "--json"], pipeline))
     finally:
         _set_eval_episodes(pipeline, 4)
-    assert set(changed) == {"evaluate@main", "evaluate@authors", "evaluate_baselines"}, changed
+    assert set(changed) == {"evaluate@main", "evaluate_baselines"}, changed
     assert "up to date" in run(["dvc", "repro"], pipeline)
 
 
@@ -150,9 +149,7 @@ def test_a_parameter_reruns_only_its_stages(pipeline):
     _set_eval_episodes(pipeline, 5)
     out = run(["dvc", "repro"], pipeline)
     ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
-    assert ran == {"evaluate@main", "evaluate@authors", "evaluate_baselines", "figures"}, out[
-        -2000:
-    ]
+    assert ran == {"evaluate@main", "evaluate_baselines", "figures"}, out[-2000:]
 
 
 def test_figures_recompute_byte_for_byte_from_the_committed_episodes_alone(pipeline, tmp_path):
