@@ -11,6 +11,11 @@ import pytest
 
 from tests.pipeline_repo import make_repo, run
 
+# 70 s on 2 cores, under -m slow: the default suite checks these stages' parts
+# (tests/test_cmetric_search.py, the boundary in tests/test_cmetric.py, the parity study in
+# tests/test_sim.py) and their dvc.yaml entries (tests/test_layout.py, tests/test_reproducible.py)
+pytestmark = pytest.mark.slow
+
 STAGES = {"cmetric_data", "cmetric_sumo", "cmetric_search", "cmetric_boundary", "parity"}
 
 
