@@ -38,17 +38,25 @@ COMMANDS = (
 MAX_LINES = 40
 
 
-def _help(command: str, capsys) -> tuple[int, str]:
+ARGPARSE_COMMANDS = (
+    "bgap.cmetric.boundary",
+    "bgap.figures",
+    "bgap.parity",
+    "bgap.bench",
+    "bgap.pipeline",
+)
+HYDRA_COMMANDS = tuple(c for c in COMMANDS if c not in ARGPARSE_COMMANDS)
+"""The commands whose ``--help`` Hydra would answer (the others parse with argparse)."""
+
+
+def _help(command: str, capsys, monkeypatch) -> tuple[int, str]:
     """``python -m <command> --help``'s exit status and output (stdout and stderr)."""
-    argv = sys.argv
-    sys.argv = [command, "--help"]
+    monkeypatch.setattr(sys, "argv", [command, "--help"])
     try:
         runpy.run_module(command, run_name="__main__", alter_sys=True)
         status = 0
     except SystemExit as done:
         status = done.code if isinstance(done.code, int) else (0 if done.code is None else 1)
-    finally:
-        sys.argv = argv
     out = capsys.readouterr()
     return status, out.out + out.err
 
@@ -60,7 +68,7 @@ def _help(command: str, capsys) -> tuple[int, str]:
 def test_help_exits_0_in_at_most_40_lines(command, capsys, monkeypatch, tmp_path):
     monkeypatch.chdir(tmp_path)  # nothing a command might write lands in the repository
     monkeypatch.setenv("COLUMNS", "100")
-    status, out = _help(command, capsys)
+    status, out = _help(command, capsys, monkeypatch)
     lines = out.rstrip("\n").splitlines()
     assert status == 0, f"python -m {command} --help exited {status}:\n{out[-3000:]}"
     assert lines, f"python -m {command} --help printed nothing"
@@ -69,6 +77,26 @@ def test_help_exits_0_in_at_most_40_lines(command, capsys, monkeypatch, tmp_path
         + "\n".join(lines[:60])
     )
     assert not any(tmp_path.iterdir()), f"{command} --help wrote {list(tmp_path.iterdir())}"
+
+
+@pytest.mark.filterwarnings("ignore:.*found in sys.modules after import of package")
+@pytest.mark.parametrize(
+    "command",
+    [c if c == "bgap.run" else pytest.param(c, marks=pytest.mark.slow) for c in HYDRA_COMMANDS],
+)
+def test_help_is_hydras_own_text(command, capsys, monkeypatch, tmp_path):
+    """``--help`` read from the config's template (``bgap.common.config._help_text``) prints
+    what Hydra prints when it composes the config and fills the same template."""
+    from bgap.common import config
+
+    monkeypatch.chdir(tmp_path)
+    texts = []
+    read = config._help_text
+    monkeypatch.setattr(config, "_help_text", lambda name: texts.append(read(name)) or texts[-1])
+    fast = _help(command, capsys, monkeypatch)
+    assert texts and texts[-1] is not None, f"{command} --help was not read from its template"
+    monkeypatch.setattr(config, "_help_text", lambda config_name: None)
+    assert fast == _help(command, capsys, monkeypatch)
 
 
 def test_the_list_is_the_readmes_commands_table():

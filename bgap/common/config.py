@@ -110,6 +110,27 @@ def _refuse_ignored(arg: str) -> None:
     )
 
 
+def _help_text(config_name: str) -> str | None:
+    """``--help``'s text read from ``<config_name>.yaml``'s ``hydra.help`` when its template
+    names only other ``hydra.help`` keys, or None (Hydra answers then).
+
+    Written by hand because Hydra composes the whole config and lists every config group,
+    loading each preset through the schemas, before filling the template (5 s per
+    ``--help``), although bgap's templates print none of it. Hydra's ``string.Template``
+    placeholders (``$CONFIG``, ``$APP_CONFIG_GROUPS``, ...) send the command to Hydra.
+    """
+    node = OmegaConf.load(f"{CONF_DIR}/{config_name}.yaml")
+    help_cfg = OmegaConf.select(node, "hydra.help")
+    if help_cfg is None or "template" not in help_cfg:
+        return None
+    try:  # resolved alone: an interpolation outside hydra.help fails here
+        text = OmegaConf.to_container(OmegaConf.create({"hydra": {"help": help_cfg}}), resolve=True)
+    except Exception:  # noqa: BLE001 - any failure to resolve alone: Hydra answers
+        return None
+    template = text["hydra"]["help"]["template"]
+    return None if "$" in template else template
+
+
 def app(
     config_name: str, prog: str, schemas: Iterable[Schema], on_interrupt: str = NOT_SAVED
 ) -> Callable[[Callable[[DictConfig], Any]], Callable[[], Any]]:
@@ -138,6 +159,9 @@ def app(
             ignored = [a for a in args if a.split("=")[0].lstrip("+~") in IGNORED_BY_HYDRA]
             if ignored:  # switched off in every config: bgap names its folders itself
                 return run(prog, lambda: _refuse_ignored(ignored[0]), on_interrupt)
+            if args in (["--help"], ["-h"]) and (text := _help_text(config_name)) is not None:
+                print(text)
+                raise SystemExit(0)
             if any(a.startswith(("-", "hydra.", "hydra/", "+hydra", "~hydra")) for a in args):
                 return hydra_task()
             return run(prog, lambda: task(compose(config_name, args, schemas)), on_interrupt)
