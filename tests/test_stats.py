@@ -115,6 +115,24 @@ def test_poisson_interval_equals_textbook_values():
     assert (lo, hi) == (pytest.approx(4.7954 / 2, abs=1e-4), pytest.approx(18.3904 / 2, abs=1e-4))
 
 
+def test_quantiles_are_scipy_stats_own_over_the_counts_the_study_sees():
+    """The Garwood and t quantiles (scipy.special) equal scipy.stats' chi-square and Student t
+    quantiles float for float, from 0 to 5,000 events and 1 to 5,000 degrees of freedom."""
+    from scipy.stats import chi2
+    from scipy.stats import t as student_t
+
+    from bgap.analysis.stats import poisson_interval, t_interval
+
+    tail = (1 - 0.95) / 2  # as poisson_interval computes it (0.025000000000000022)
+    for k in (0, 1, 2, 3, 7, 10, 42, 100, 999, 5000):
+        lo = 0.0 if k == 0 else chi2.ppf(tail, 2 * k) / 2
+        assert poisson_interval(k, 1.0) == (lo, chi2.ppf(1 - tail, 2 * k + 2) / 2)
+    for n in (2, 3, 5, 10, 30, 100, 1000, 5001):
+        x = np.arange(n, dtype=float) ** 1.5
+        half = student_t.ppf(0.975, n - 1) * x.std(ddof=1) / np.sqrt(n)
+        assert t_interval(x) == (x.mean() - half, x.mean() + half)
+
+
 def test_collisions_per_100km_of_a_hand_built_set_of_episodes():
     """Three episodes: 10 km without a crash, 20 km ending in one, 20 km ending in one:
     2 crashes over 50 km = 4 per 100 km; per seed, the mean of the seeds' own rates."""
