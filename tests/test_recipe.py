@@ -130,6 +130,32 @@ def test_a_lever_replaces_the_chosen_trials_own_setting_and_one_it_has_is_left_o
         _cfg("levers=['agent.extractor=flatten']")  # needs mode=rule
     with pytest.raises(ConfigError, match="KEY=VALUE"):
         _cfg("mode=rule", "levers=[flatten]")
+    with pytest.raises(ConfigError, match="agent or reward"):
+        _cfg("mode=rule", "levers=['agent.gamma=0.9 env=sparse']")  # not the recipe's
+    with pytest.raises(ConfigError, match="each key once"):
+        _cfg("mode=rule", "levers=['agent.gamma=0.9 agent.gamma=0.8']")
+
+
+def test_a_lever_of_several_settings_brings_a_group_back_whole():
+    """``agent=recipe reward=recipe agent.extractor=attention``: the trial's agent and reward
+    settings go (the presets come back whole), its other settings stay, the lever's own
+    settings come last in their order."""
+    import optuna
+
+    from bgap.experiments.recipe import lever_variants
+
+    overrides = ["env=dense", "reward=highway", "agent=qrdqn", "agent.gamma=0.8",
+                 "reward.collision=-2.0", "agent.extractor=attention", "seed=0"]  # fmt: skip
+    trial = optuna.trial.create_trial(value=1.0, user_attrs={"overrides": overrides})
+    trial.number = 3
+    lever = "agent=recipe reward=recipe agent.extractor=attention"
+    (only,) = lever_variants(_cfg("mode=rule", f"levers=['{lever}']"), trial)
+    assert only.label == lever and only.folder == "trial-0003-lever1"
+    assert only.overrides == ["env=dense", "seed=0", "agent=recipe", "reward=recipe",
+                              "agent.extractor=attention"]  # fmt: skip
+    # the variant composes: the main arm's recipe with the lever's network
+    agent = validate(compose("train", only.overrides)).agent
+    assert agent.name == "recipe" and agent.extractor == "attention"
 
 
 def test_by_the_rule_the_mean_over_seeds_decides_and_intervals_have_width():

@@ -340,9 +340,11 @@ class RecipeConfig(SweepConfig):
     stock_max_collision_pct: float = 50.0
     """The stock rule's collision bound (issue 20: under half of the episodes)."""
     levers: list[str] = field(default_factory=list)
-    """Mode ``rule``: settings of the chosen recipe switched one at a time (for example
-    ``agent.extractor=flatten``, ``agent.observation=[]``), each trained with every check
-    seed and scored as the check is: ``levers.md`` says how far each moves the objective."""
+    """Mode ``rule``: settings of the chosen recipe switched one lever at a time (for example
+    ``agent.extractor=flatten``, ``agent.observation=[]``, or several settings at once:
+    ``'agent=recipe reward=recipe'``, a group bringing its preset back whole), each trained
+    with every check seed and scored as the check is: ``levers.md`` says how far each moves
+    the objective."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -357,12 +359,21 @@ class RecipeConfig(SweepConfig):
         check(len(self.check_seeds) >= 2, "check_seeds", self.check_seeds, ">= 2 seeds")
         check(self.check_episodes >= 10, "check_episodes", self.check_episodes, ">= 10")
         for lever in self.levers:
+            keys = [part.split("=", 1)[0] for part in lever.split()]
             check(
-                "=" in lever,
+                bool(keys) and all("=" in part and part[0] != "=" for part in lever.split()),
                 "levers",
                 lever,
-                "each lever is KEY=VALUE, e.g. agent.extractor=flatten",
+                "each lever is KEY=VALUE, several separated by spaces, e.g. agent.extractor="
+                "flatten or 'agent=recipe reward=recipe'",
             )
+            check(
+                all(key.split(".")[0] in ("agent", "reward") for key in keys),
+                "levers",
+                lever,
+                "a lever switches the recipe's settings: keys under agent or reward",
+            )
+            check(len(set(keys)) == len(keys), "levers", lever, "each key once")
         check(not self.levers or self.mode == "rule", "levers", self.levers, "need mode=rule")
 
 

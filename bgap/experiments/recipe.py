@@ -93,14 +93,28 @@ def variant(trial: optuna.trial.FrozenTrial) -> Variant:
     return Variant(trial.number, f"trial-{trial.number:04d}", list(trial.user_attrs["overrides"]))
 
 
+def switched(overrides: list[str], lever: str) -> list[str]:
+    """``overrides`` with ``lever``'s settings (``KEY=VALUE``, several separated by spaces) in
+    place of their own: a dotted key replaces that key; a group (``agent=recipe``) replaces
+    the group and every key under it, so a preset comes back whole (``agent=recipe
+    reward=recipe agent.extractor=attention``: the main arm's recipe with this network)."""
+    parts = lever.split()
+    keys = [part.split("=", 1)[0] for part in parts]
+
+    def replaced(override: str) -> bool:
+        key = override.split("=", 1)[0]
+        return any(key == k or ("." not in k and key.startswith(f"{k}.")) for k in keys)
+
+    return [o for o in overrides if not replaced(o)] + parts
+
+
 def lever_variants(cfg: RecipeConfig, trial: optuna.trial.FrozenTrial) -> list[Variant]:
-    """The chosen ``trial`` with each of ``cfg.levers`` (``KEY=VALUE``) in place of its own
-    value of KEY; a lever the trial already has is left out."""
+    """The chosen ``trial`` with each of ``cfg.levers`` in place of its own settings
+    (:func:`switched`); a lever the trial already has is left out."""
     own = variant(trial)
     out = []
     for k, lever in enumerate(cfg.levers, 1):
-        key = lever.split("=", 1)[0]
-        overrides = [o for o in own.overrides if not o.startswith(f"{key}=")] + [lever]
+        overrides = switched(own.overrides, lever)
         if sorted(overrides) != sorted(own.overrides):
             out.append(Variant(lever, f"{own.folder}-lever{k}", overrides))
     return out
