@@ -168,3 +168,14 @@ def test_the_recipe_objective_scores_both_policies_against_the_rule_based_ego():
     # 25.0 m/s < 0.95 x 27 = 25.65: 1000 + the shortfall, 2.53% of the floor
     slow = rule_objective(f(0.0, 0.0, 25.0), rule, f(0.0, 0.0, 21.0), stock_rule)
     assert slow == pytest.approx(1000 + 100 * (25.65 - 25.0) / 25.65)
+
+
+def test_the_stock_rule_and_the_speed_floor_by_hand():
+    """keeps_up: at most 1 point more collisions than the rule-based ego at >= 0.95 x its
+    speed (20.9 m/s for 22); speed_shortfall: 0 at or above the floor, else % of it."""
+    from bgap.analysis.stats import keeps_up, speed_shortfall
+
+    assert keeps_up(1.0, 20.9, 0.0, 22.0) and not keeps_up(1.1, 21.0, 0.0, 22.0)
+    assert not keeps_up(0.0, 20.8, 0.0, 22.0)  # safe, but under 20.9
+    assert speed_shortfall(20.9, 22.0) == 0.0 and speed_shortfall(30.0, 22.0) == 0.0
+    assert speed_shortfall(19.0, 22.0) == pytest.approx(100 * 1.9 / 20.9)

@@ -140,10 +140,13 @@ def test_the_scene_bootstrap_matches_the_dirichlet_posterior_of_one_seed():
     """One seed, 40 scenes crash only at the first setting, 10 only at the second, 150 at
     both or neither: the draws are the Dirichlet(40.5, 150.5, 10.5) posterior's
     p1 - p3, in points: mean 100 * 30 / 201.5 and its closed-form spread."""
-    from bgap.analysis.claims import scene_crash_bootstrap
+    from bgap.analysis.stats import seed_bootstrap
 
-    d = np.r_[np.full(40, 100.0), np.zeros(150), np.full(10, -100.0)]
-    observed, dist = scene_crash_bootstrap([d], np.random.default_rng(0), draws=40_000)
+    d = np.r_[np.full(40, 1.0), np.zeros(150), np.full(10, -1.0)]
+    observed, dist = seed_bootstrap(
+        [d], rng=np.random.default_rng(0), draws=40_000, differences="events"
+    )
+    observed, dist = 100 * observed, 100 * dist
     assert observed == pytest.approx(15.0)
     a = np.array([40.5, 150.5, 10.5])
     p = a / a.sum()

@@ -96,6 +96,25 @@ def test_pairing_by_model_removes_the_between_seed_spread():
         seed_bootstrap(a, b[:3], rng=rng, paired=True)
 
 
+def test_per_scene_differences_are_never_read_as_a_rates_events():
+    """Speed differences of exactly 0 on every scene (a setting the policy ignores) are no
+    rate of 0 events: no draw lies off 0, so the difference is not significant; crash
+    differences are -1, 0 or +1 and nothing else."""
+    rng = np.random.default_rng(6)
+    zeros = [np.zeros(50)] * 4
+    observed, dist = seed_bootstrap(zeros, rng=rng, draws=2000, differences="values")
+    assert observed == 0.0 and bootstrap_test(dist)[2] == 1.0
+    observed, dist = seed_bootstrap(zeros, rng=rng, draws=2000)  # read as rates: all above 0
+    assert (dist > 0).all()
+    observed, dist = seed_bootstrap(zeros, rng=rng, draws=2000, differences="events")
+    lo, hi, p = bootstrap_test(dist, observed=observed)
+    assert lo < 0.0 < hi and p > 0.5  # varies symmetrically about 0: no zero width
+    with pytest.raises(ValueError, match="-1, 0 or"):
+        seed_bootstrap([np.full(5, 100.0)], rng=rng, differences="events")
+    with pytest.raises(ValueError, match="alone"):
+        seed_bootstrap(zeros, zeros, rng=rng, differences="values")
+
+
 def test_a_rate_interval_over_seeds_is_never_of_zero_width():
     rng = np.random.default_rng(5)
     lo, hi = seed_rate_interval([np.zeros(100)] * 3, rng)

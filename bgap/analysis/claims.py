@@ -33,33 +33,6 @@ def _select(df: pd.DataFrame, where: dict) -> pd.DataFrame:
     return df[mask]
 
 
-def scene_crash_bootstrap(
-    groups: list[np.ndarray], rng: np.random.Generator, draws: int = 20_000
-) -> tuple[float, np.ndarray]:
-    """Bootstrap of a mean over training seeds of per-scene crash differences (-100, 0 or
-    +100 points: one model, the same scene at two settings, e.g. two perception radii).
-
-    Each draw resamples the seeds with replacement; a drawn seed's shares of scenes that
-    crash only at the first setting, at both or neither, and only at the second come from
-    their Dirichlet posterior (Jeffreys prior, 1/2 each): the paired analogue of
-    :func:`bgap.analysis.stats.seed_bootstrap`'s Beta posterior of a rate. A seed whose every
-    scene ends alike still varies, symmetrically about 0, so no interval has zero width and
-    a policy the setting does not change reads "not significant". (``seed_bootstrap`` reads
-    such a seed's all-zero differences as a rate of 0 events, whose draws all lie above 0:
-    it made a difference of exactly 0 significant. Written here rather than in the stats
-    module, which every stage of the pipeline imports.)"""
-    counts = np.array([[(x > 0).sum(), (x == 0).sum(), (x < 0).sum()] for x in groups])
-    observed = float(np.mean([x.mean() for x in groups]))
-    pick = rng.integers(len(groups), size=(draws, len(groups)))
-    shares = np.empty(pick.shape)
-    for s, c in enumerate(counts):
-        slots = pick == s
-        if slots.any():
-            p = rng.dirichlet(c + 0.5, size=int(slots.sum()))
-            shares[slots] = 100.0 * (p[:, 0] - p[:, 2])
-    return observed, shares.mean(axis=1)
-
-
 def _test(claim: Claim, df: pd.DataFrame, rng: np.random.Generator) -> dict | None:
     """Observed difference and bootstrap replicates of one claim on ``df`` (one arm, one
     density, the grid's traffic, duplicate cells removed)."""
@@ -72,10 +45,13 @@ def _test(claim: Claim, df: pd.DataFrame, rng: np.random.Generator) -> dict | No
         both = a.merge(b, on=keys, suffixes=("_a", "_b"))
         both["d"] = both[f"{claim.metric}_a"] - both[f"{claim.metric}_b"]
         groups = _groups(both.assign(radius=0.0), "d")
-        if claim.metric == "collision_pct":
-            observed, dist = scene_crash_bootstrap(list(groups.values()), rng)
+        if claim.metric == "collision_pct":  # crashes in points: -100, 0 or +100 per scene
+            observed, dist = seed_bootstrap(
+                [x / 100.0 for x in groups.values()], rng=rng, differences="events"
+            )
+            observed, dist = 100.0 * observed, 100.0 * dist
         else:
-            observed, dist = seed_bootstrap(list(groups.values()), rng=rng)
+            observed, dist = seed_bootstrap(list(groups.values()), rng=rng, differences="values")
         sizes = (len(groups), len(groups), len(both), len(both))
         values = (a[claim.metric].mean(), b[claim.metric].mean())
     else:

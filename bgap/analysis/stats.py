@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -134,6 +135,7 @@ def seed_bootstrap(
     rng: np.random.Generator,
     draws: int = 20_000,
     paired: bool = False,
+    differences: Literal["events", "values"] | None = None,
 ) -> tuple[float, np.ndarray]:
     """Two-level bootstrap of a mean over training seeds, the independent units.
 
@@ -147,14 +149,29 @@ def seed_bootstrap(
     ``paired``: ``a[i]`` and ``b[i]`` come from the same trained model (one policy in two
     traffic conditions), so each draw picks the same seeds for both; their episodes are
     resampled independently (different conditions share no episodes). Unrelated trainings
-    (two policy families) are never paired. Where two conditions play identical scenes
-    (the same episode seeds and traffic, e.g. two perception radii), pass the per-episode
-    differences as ``a`` alone instead.
+    (two policy families) are never paired.
+
+    ``differences``: where two conditions play identical scenes (the same episode seeds and
+    traffic, e.g. two perception radii), ``a`` alone holds each seed's per-scene differences
+    instead. ``"events"``: differences of 0/1 events (-1, 0 or +1), a drawn seed's shares of
+    scenes with an event only at the first setting, at both or neither, and only at the second
+    drawn from their Dirichlet posterior (Jeffreys prior, 1/2 each), the paired analogue of
+    the Beta posterior of a rate: a seed whose scenes all end alike still varies,
+    symmetrically about 0, so no interval has zero width. ``"values"``: other differences,
+    resampled as values (never read as a rate's events: all-zero differences are no rate of
+    0 events, whose draws would all lie above 0 and make a difference of exactly 0
+    significant).
 
     Returns the observed statistic and its ``draws`` bootstrap replicates."""
     a = [np.asarray(x, dtype=float) for x in a]
     pick_a = rng.integers(len(a), size=(draws, len(a)))
     observed = float(np.mean([x.mean() for x in a]))
+    if differences is not None:
+        if b is not None:
+            raise ValueError("differences are one sample: pass them as `a` alone")
+        if differences == "events":
+            return observed, _dirichlet_means(a, pick_a, rng)
+        return observed, _resampled_means(a, pick_a, rng, events=False)
     dist = _resampled_means(a, pick_a, rng)
     if b is not None:
         b = [np.asarray(x, dtype=float) for x in b]
@@ -166,15 +183,33 @@ def seed_bootstrap(
     return observed, dist
 
 
-def _resampled_means(groups: list[np.ndarray], pick: np.ndarray, rng) -> np.ndarray:
-    """Per draw, the mean over the picked seeds of each one's resampled episode mean."""
+def _dirichlet_means(groups: list[np.ndarray], pick: np.ndarray, rng) -> np.ndarray:
+    """Per draw, the mean over the picked seeds of each one's share of +1 minus its share of
+    -1 differences, the shares drawn from their Dirichlet posterior (``differences="events"``)."""
+    if any(not np.isin(x, (-1.0, 0.0, 1.0)).all() for x in groups):
+        raise ValueError("differences of events are -1, 0 or +1")
+    means = np.empty(pick.shape)
+    for s, x in enumerate(groups):
+        slots = pick == s
+        if slots.any():
+            counts = np.array([(x > 0).sum(), (x == 0).sum(), (x < 0).sum()])
+            shares = rng.dirichlet(counts + 0.5, size=int(slots.sum()))
+            means[slots] = shares[:, 0] - shares[:, 2]
+    return means.mean(axis=1)
+
+
+def _resampled_means(
+    groups: list[np.ndarray], pick: np.ndarray, rng, events: bool = True
+) -> np.ndarray:
+    """Per draw, the mean over the picked seeds of each one's resampled episode mean; with
+    ``events``, a seed of 0/1 values is drawn as a rate instead."""
     means = np.empty(pick.shape)
     for s, x in enumerate(groups):
         slots = pick == s
         k, n = int(slots.sum()), len(x)
         if k == 0:
             continue
-        if np.isin(x, (0.0, 1.0)).all():
+        if events and np.isin(x, (0.0, 1.0)).all():
             # the seed's rate from its Jeffreys posterior Beta(e + 1/2, n - e + 1/2): the
             # spread of a binomial resample, but a seed with 0 (or n) events still varies (a
             # resample of 0/100 is always 0, which would make intervals of zero width)
@@ -269,6 +304,28 @@ STOCK_MARGIN = 1.0
 in stock traffic, and still meet issue 32's stock rule."""
 
 
+def speed_shortfall(speed: float, rule_speed: float, floor: float = RULE_FLOOR) -> float:
+    """How far ``speed`` falls below ``floor`` x the rule-based ego's speed, in % of that
+    floor (0 at or above it): the one speed rule of the recipe objective and of its trials'
+    pruning."""
+    need = floor * rule_speed
+    return max(0.0, 100.0 * (need - speed) / need) if need > 0 else 0.0
+
+
+def keeps_up(
+    collision_pct: float,
+    speed: float,
+    rule_collision_pct: float,
+    rule_speed: float,
+    floor: float = RULE_FLOOR,
+    margin: float = STOCK_MARGIN,
+) -> bool:
+    """Issue 32's stock rule: a default policy crashes in at most ``margin`` points more
+    episodes than the rule-based ego, at a mean speed of at least ``floor`` x its (the same
+    episodes)."""
+    return collision_pct <= rule_collision_pct + margin and speed >= floor * rule_speed
+
+
 def rule_objective(
     rich: dict[str, float],
     rich_rule: dict[str, float],
@@ -289,10 +346,10 @@ def rule_objective(
     behaviour-rich policy's collisions per 100 km minus the rule-based ego's, and the default
     policy's collision % minus the rule-based ego's minus ``margin``. Below 0: both of issue
     32's rules are met (the first strictly)."""
-    short = 0.0
-    for policy, rule in ((rich, rich_rule), (stock, stock_rule)):
-        need = floor * rule["avg_speed"]
-        short += max(0.0, 100.0 * (need - policy["avg_speed"]) / need) if need > 0 else 0.0
+    short = sum(
+        speed_shortfall(policy["avg_speed"], rule["avg_speed"], floor)
+        for policy, rule in ((rich, rich_rule), (stock, stock_rule))
+    )
     if short > 0:
         return 1000.0 + short
     return max(

@@ -18,7 +18,7 @@ from bgap.analysis.episodes import (
     policy_parts,
 )
 from bgap.analysis.paper import HEADLINE, PAPER_CRASHES, PAPER_SPEED, TABLE_II
-from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, versus_rule
+from bgap.analysis.stats import keeps_up, versus_rule
 from bgap.common.vocab import CRASH_KINDS
 
 
@@ -255,9 +255,10 @@ def _beside_rule(table: pd.DataFrame, arm: str, family: str):
 def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame) -> str:
     """Issue 32's question per arm that trains both families on the mixture: does its
     behaviour-rich policy beat the rule-based ego in the paper's dense traffic (pooled over
-    the cells: fewer collisions per 100 km at :data:`RULE_FLOOR` x its speed), and does its
-    default policy keep up with it in stock traffic (collision % at most
-    :data:`STOCK_MARGIN` points above its, at :data:`RULE_FLOOR` x its speed)? Beside
+    the cells: fewer collisions per 100 km at 0.95 x its speed,
+    :func:`bgap.analysis.stats.versus_rule`), and does its default policy keep up with it in
+    stock traffic (collision % at most 1 point above its, at 0.95 x its speed,
+    :func:`bgap.analysis.stats.keeps_up`)? Beside
     them, the sparse cells judged the same way (reported, not a rule) and the arm's verdict
     on the paper's headline claim, so the claim can be read with a learner that drives as
     well as the hand-built driver."""
@@ -285,10 +286,7 @@ def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame) -> str:
                      "**yes**" if verdict == "beats" else f"no ({verdict})"]  # fmt: skip
         if pair := _beside_rule(stock, arm, "default"):
             p, r = pair
-            keeps = (
-                p.collision_pct <= r.collision_pct + STOCK_MARGIN
-                and p.avg_speed >= RULE_FLOOR * r.avg_speed
-            )
+            keeps = keeps_up(p.collision_pct, p.avg_speed, r.collision_pct, r.avg_speed)
             cells += [f"{p.collision_pct:.1f}% at {p.avg_speed:.2f}",
                       f"{r.collision_pct:.1f}% at {r.avg_speed:.2f}",
                       "**yes**" if keeps else "no"]  # fmt: skip

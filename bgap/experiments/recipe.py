@@ -57,13 +57,13 @@ from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, com
 from bgap.experiments.evaluate import crash_split
 from bgap.experiments.sweep import (
     RULE_KEYS,
+    figures_with_rule,
     finished,
     objective,
     rule_score,
     study_name,
     sweep,
     validation_episodes,
-    versus_rule,
     write_outputs,
 )
 from bgap.experiments.train import SIDE_BY_SIDE_STEPS, train
@@ -202,10 +202,10 @@ def _check_both(
 ) -> dict[str, Any]:
     """Mode ``rule``: the behaviour-rich policy trained in ``run_dir`` and the same recipe's
     default policy (trained beside it) against the rule-based ego, on validation episodes."""
-    row = versus_rule(str(run_dir), tcfg, cfg.check_episodes)
+    row = figures_with_rule(str(run_dir), tcfg, cfg.check_episodes)
     stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
     train(replace(stock, resume=True), progress=progress)
-    stock_row = versus_rule(stock.run_dir, stock, cfg.check_episodes)
+    stock_row = figures_with_rule(stock.run_dir, stock, cfg.check_episodes)
     row |= {f"stock_{k}": v for k, v in stock_row.items()}
     print(
         f"trial {run_dir.name}: behaviour-rich {row['per_100km']:.2f} collisions per 100 km at "

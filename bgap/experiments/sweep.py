@@ -34,7 +34,7 @@ from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import baseline, load_model, rollout
-from bgap.analysis.stats import constrained_score, per_100km, rule_objective
+from bgap.analysis.stats import constrained_score, per_100km, rule_objective, speed_shortfall
 from bgap.common import studies
 from bgap.common.cluster import ENV_ADDRESS, ClusterConfig, run_tasks
 from bgap.common.config import app, load, validate
@@ -168,7 +168,7 @@ def validation_figures(policy, cfg: ExperimentConfig, episodes: int) -> dict[str
     }
 
 
-def versus_rule(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float]:
+def figures_with_rule(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float]:
     """:func:`validation_figures` of ``policy`` and, prefixed ``rule_``, of the rule-based ego
     on the same episodes."""
     mine = validation_figures(policy, cfg, episodes)
@@ -177,7 +177,7 @@ def versus_rule(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float
 
 
 def split_rule(figures: dict[str, float], prefix: str = "") -> tuple[dict, dict]:
-    """The policy's and the rule-based ego's figures out of :func:`versus_rule`'s keys (with
+    """The policy's and the rule-based ego's figures out of :func:`figures_with_rule`'s keys (with
     ``prefix``, e.g. ``stock_``)."""
     keys = ("collision_pct", "per_100km", "avg_speed")
     return (
@@ -188,7 +188,7 @@ def split_rule(figures: dict[str, float], prefix: str = "") -> tuple[dict, dict]
 
 def rule_score(cfg: SweepConfig, figures: dict[str, float]) -> float:
     """Mode ``rule``: :func:`bgap.analysis.stats.rule_objective` of both policies' figures
-    (keys of :func:`versus_rule`, the default policy's prefixed ``stock_``)."""
+    (keys of :func:`figures_with_rule`, the default policy's prefixed ``stock_``)."""
     return rule_objective(*split_rule(figures), *split_rule(figures, "stock_"),
                           floor=cfg.rule_floor, margin=cfg.stock_margin)  # fmt: skip
 
@@ -232,10 +232,9 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
 
     def score(model, c, episodes):
         if cfg.mode == "rule":  # the behaviour-rich half of the objective, while it trains
-            mine, rule = split_rule(versus_rule(model, c, episodes))
-            need = cfg.rule_floor * rule["avg_speed"]
-            if mine["avg_speed"] < need:
-                return 1000.0 + 100.0 * (need - mine["avg_speed"]) / need
+            mine, rule = split_rule(figures_with_rule(model, c, episodes))
+            if short := speed_shortfall(mine["avg_speed"], rule["avg_speed"], cfg.rule_floor):
+                return 1000.0 + short
             return mine["per_100km"] - rule["per_100km"]
         idle = _validation(baseline("idle"), c, episodes)[1]
         return objective(cfg, *evaluate_model(model, c, episodes), idle)
@@ -249,8 +248,8 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
     if cfg.mode == "rule":  # the same recipe's default policy, in stock traffic
         stock = replace(tcfg, policy="default", run_dir=f"{run_dir}-default")
         train(stock, progress=False)
-        figures = versus_rule(model, tcfg, cfg.sweep_eval_episodes)
-        stock_figures = versus_rule(load_model(stock.run_dir), stock, cfg.sweep_eval_episodes)
+        figures = figures_with_rule(model, tcfg, cfg.sweep_eval_episodes)
+        stock_figures = figures_with_rule(load_model(stock.run_dir), stock, cfg.sweep_eval_episodes)
         figures |= {f"stock_{k}": v for k, v in stock_figures.items()}
         for key, value in figures.items():
             trial.set_user_attr(key, value)
