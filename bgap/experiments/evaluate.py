@@ -18,6 +18,7 @@ import tempfile
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -169,10 +170,6 @@ _MODELS: dict[str, Any] = {}
 """A worker process's loaded models by path (an SB3 load builds the networks again)."""
 
 
-def _one_thread() -> None:
-    set_threads(1, 1)
-
-
 def _evaluate_cached(name: str, spec: Any, *rest: Any) -> list:
     """:func:`_evaluate_chunk` in a worker process, each model loaded once per process."""
     if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
@@ -257,7 +254,7 @@ def _play(
         # forward passes alternate, so a process with threads leaves cores idle between its
         # kernels; spawned, not forked, since torch's thread pool does not survive a fork
         context = get_context("spawn")
-        with ProcessPoolExecutor(workers, context, initializer=_one_thread) as pool:
+        with ProcessPoolExecutor(workers, context, initializer=partial(set_threads, 1, 1)) as pool:
             for part in pool.map(_evaluate_cached, *zip(*jobs, strict=True)):
                 rows.extend(part)
                 bar.update(chunk)

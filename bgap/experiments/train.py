@@ -277,8 +277,7 @@ def _task_folder_name(cfg: ExperimentConfig) -> str:
 
 def _train_worker(cfg: ExperimentConfig, held: list[Path]) -> Path:
     held_by_parent(held)  # train_side_by_side locked the run folders for this process
-    set_threads(1)
-    return train(cfg, progress=False)
+    return train(cfg, progress=False)  # which sets one thread
 
 
 @app("train", "bgap.train", SCHEMAS)
