@@ -229,8 +229,8 @@ def test_a_rehearsal_trains_every_arm_at_the_tiny_profile():
 def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     """dvc.yaml lists a reader before the stage that writes what it reads (as replay_data
     after evaluate_baselines): the rehearsal's order puts the writer first anyway, and a
-    rehearsal of the reader alone runs the writer too (a copy holds no outputs), and no
-    stage that the reader does not read from."""
+    rehearsal of the reader alone runs the writer too where the copy lacks its outputs, and
+    no stage that the reader does not read from."""
     import yaml
 
     from bgap.experiments.pipeline import _upstream_first
@@ -246,3 +246,8 @@ def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     rank, needed = _upstream_first(tmp_path, ["reader"])
     assert rank["writer"] < rank["reader"]
     assert needed == {"reader", "writer"}
+    # a writer whose outputs the copy holds (committed with cache: false) is not run again:
+    # the reader reads the committed file, as recipe_learner's presets are read
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "table").write_text("1\n")
+    assert _upstream_first(tmp_path, ["reader"])[1] == {"reader"}

@@ -158,6 +158,25 @@ def test_a_lever_of_several_settings_brings_a_group_back_whole():
     assert agent.name == "recipe" and agent.extractor == "attention"
 
 
+def test_without_levers_the_levers_files_hold_the_recipes_row_alone(tmp_path):
+    """``levers=[]`` (the pipeline declares levers.csv and levers.md for every learner): the
+    files are written, nothing is trained, the page says no lever was asked for."""
+    import optuna
+
+    from bgap.experiments.recipe import check_levers
+
+    trial = optuna.trial.create_trial(value=0.5, user_attrs={"overrides": ["env=dense"]})
+    trial.number = 4
+    summary = pd.DataFrame([{
+        "trial": 4, "per_100km": 1.0, "per_100km_lo": 0.5, "per_100km_hi": 1.5,
+        "avg_speed": 27.0, "stock_collision_pct": 0.0, "stock_collision_pct_lo": 0.0,
+        "stock_collision_pct_hi": 1.2, "stock_avg_speed": 21.5, "objective": 0.5}])  # fmt: skip
+    paths = check_levers(_cfg("mode=rule"), trial, summary, tmp_path, tmp_path, False)
+    text = paths["levers"].read_text()
+    assert "No lever was asked for" in text and text.count("\n| ") == 2  # header + recipe
+    assert (tmp_path / "levers.csv").exists() and not any(tmp_path.glob("trial-*"))
+
+
 def test_by_the_rule_the_mean_over_seeds_decides_and_intervals_have_width():
     """mode=rule's choice (issue 32): candidates ranked by the objective of their means over
     seeds; a candidate whose seeds agree exactly still gets an interval of non-zero width

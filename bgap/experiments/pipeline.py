@@ -153,7 +153,7 @@ radii: [180.0, 30.0]
 REHEARSED = ".rehearsed"
 """Marks a finished rehearsal in its folder: ``--work`` of an earlier run reuses it."""
 
-LAST = ("recipe", "calibrate")
+LAST = ("recipe", "recipe_learner", "calibrate")
 """Stages rehearsed after all others: they rewrite presets other stages read."""
 
 
@@ -242,7 +242,8 @@ def _upstream_first(tree: Path, stages: list[str]) -> tuple[dict[str, int], set[
     """Every stage of ``tree``'s pipeline ranked so that each comes after those whose
     outputs it reads (dvc.yaml's own order may put a data stage after its reader), and the
     names of ``stages`` (a ``foreach`` stage's name stands for all its items) with every
-    stage they read from, directly or not."""
+    stage they read from, directly or not, whose outputs the copy lacks (the DVC cache's:
+    models, episodes)."""
     # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
     import networkx as nx
     from dvc.repo import Repo
@@ -251,7 +252,12 @@ def _upstream_first(tree: Path, stages: list[str]) -> tuple[dict[str, int], set[
     order = reversed(list(nx.lexicographical_topological_sort(graph, key=str)))
     rank = {stage.name: k for k, stage in enumerate(order)}  # (addressing is relative to cwd)
     named = [n for n in graph if n.name in stages or n.name.split("@")[0] in stages]
-    needed = {n.name for stage in named for n in (stage, *nx.descendants(graph, stage))}
+    # an upstream stage whose outputs the copy holds (committed presets, tables) is not run:
+    # the named stages read the checkout's files, as in the study
+    missing = {n for n in graph if any(not (tree / str(o.def_path)).exists() for o in n.outs)}
+    needed = {n.name for n in named} | {
+        n.name for stage in named for n in nx.descendants(graph, stage) if n in missing
+    }
     return rank, needed
 
 

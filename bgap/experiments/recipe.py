@@ -128,7 +128,7 @@ def check_all(
     trainings side by side (each seeds itself: the same rows as one after the other);
     trainings too short to pay for a process's start run here."""
     calls = [(v, seed) for v in variants for seed in cfg.check_seeds]
-    if cfg.workers <= 1 or len(calls) == 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
+    if cfg.workers <= 1 or len(calls) <= 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
         return [check_seed(cfg, v, seed, root, progress) for v, seed in calls]
     # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
     context = multiprocessing.get_context("spawn")
@@ -347,6 +347,8 @@ def markdown_levers(
             "",
             "Left out (the recipe already has them): " + ", ".join(f"`{k}`" for k in kept),
         ]
+    if not cfg.levers:
+        lines += ["", "No lever was asked for (`levers=[]`): the recipe's row alone."]
     return "\n".join(lines) + "\n"
 
 
@@ -490,7 +492,7 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         out / "learning_curves.png",
         f"recipe (trial {trial.number}): validation during training, each seed",
     )
-    if cfg.levers:
+    if cfg.mode == "rule":  # levers.md also without levers: the pipeline declares it
         paths |= check_levers(cfg, trial, summary, root, out, progress)
     tcfg = validate(compose("train", trial.user_attrs["overrides"]))
     preset_dir = Path(cfg.preset_dir or Path(cfg.root) / "presets")
