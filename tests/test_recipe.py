@@ -251,3 +251,57 @@ def test_the_check_in_processes_gives_the_rows_it_gives_in_one(tmp_path, monkeyp
         tables[workers] = pd.DataFrame(rows).drop(columns="run_dir")
     assert list(tables[1].seed) == [0, 1]
     pd.testing.assert_frame_equal(tables[1], tables[2])
+
+
+def test_the_check_resumes_from_the_study_on_a_machine_without_its_run_folders(
+    tmp_path, monkeypatch
+):
+    """Finished check rows are kept in the study's attributes with their validation curves:
+    after the study's trial log is restored into a new database (a new machine), the same
+    check trains nothing and returns the same rows, the learning curves come from the study,
+    and a check of other validation episodes is trained again."""
+    import optuna
+
+    import bgap.experiments.recipe as recipe_module
+    from bgap.experiments import trial_log
+
+    trained = []
+
+    def fake_check_seed(cfg, v, seed, root, progress):  # one training's row and its curve
+        run_dir = root / f"{v.folder}-s{seed}"
+        run_dir.mkdir(parents=True)
+        curve = {"gradient_updates": [100, 200], "collision_pct": [9.0, seed],
+                 "avg_speed": [20.0, 25.0], "idle_collision_pct": [3.0, 3.0],
+                 "idle_avg_speed": [25.0, 25.0], "rule_collision_pct": [1.0, 1.0],
+                 "rule_avg_speed": [27.0, 27.0]}  # fmt: skip
+        pd.DataFrame(curve).to_csv(run_dir / "evaluations.csv", index=False)
+        trained.append((v.label, seed))
+        return {"trial": v.label, "seed": seed, "run_dir": str(run_dir), "per_100km": seed / 3}
+
+    monkeypatch.setattr(recipe_module, "check_seed", fake_check_seed)
+    cfg = _cfg("mode=rule", "check_seeds=[0,1,2]", "workers=1")
+    overrides = ["env=dense", "agent.gamma=0.9"]
+    variants = [recipe_module.Variant(5, "trial-0005", overrides),
+                recipe_module.Variant("agent.gamma=0.8", "trial-0005-lever1",
+                                      ["env=dense", "agent.gamma=0.8"])]  # fmt: skip
+    db = f"sqlite:///{tmp_path / 'first.db'}"
+    study = optuna.create_study(study_name="s", storage=db)
+    first = recipe_module.check_all(cfg, variants, tmp_path / "a", False, study)
+    assert len(trained) == 6 and [r["seed"] for r in first] == [0, 1, 2, 0, 1, 2]
+
+    trial_log.save(db, "s", tmp_path / "log.json")
+    again = f"sqlite:///{tmp_path / 'again.db'}"  # the new machine: a new root too
+    trial_log.restore(again, tmp_path / "log.json")
+    restored = optuna.load_study(study_name="s", storage=again)
+    rows = recipe_module.check_all(cfg, variants, tmp_path / "b", False, restored)
+    assert len(trained) == 6  # nothing trained again
+    assert [r | {"run_dir": ""} for r in rows] == [r | {"run_dir": ""} for r in first]
+    assert rows[4]["run_dir"] == str(tmp_path / "b" / "trial-0005-lever1-s1")
+    found = recipe_module.curves([r["run_dir"] for r in rows[:3]], restored)
+    assert list(found) == ["trial-0005-s0", "trial-0005-s1", "trial-0005-s2"]
+    assert found["trial-0005-s2"].collision_pct.tolist() == [9.0, 2.0]
+    assert recipe_module.curves([r["run_dir"] for r in rows[:3]]) == {}  # folders gone
+
+    other = _cfg("mode=rule", "check_seeds=[0,1,2]", "workers=1", "check_episodes=50")
+    recipe_module.check_all(other, variants[:1], tmp_path / "c", False, restored)
+    assert len(trained) == 9  # other validation episodes: other rows

@@ -16,7 +16,9 @@ Three steps, all on validation episodes (seeds ``val_seed + k``; the test episod
    ``check_seeds`` and played on ``check_episodes`` validation episodes, beside the idle and
    rule-based egos on the same episodes. One trial's single lucky seed does not make a
    recipe: the chosen candidate is the best by the same rule applied to its mean over seeds.
-   The checks run ``workers`` (2) at a time, each in its own process.
+   The checks run ``workers`` (2) at a time, each in its own process; each finished row is
+   kept in the study (with its validation curve), so a check resumes from the study's trial
+   log (``bgap.pipeline trials``) on a machine without its run folders.
    With ``stock_check=true`` each candidate's default policy is trained too (stock traffic,
    the same seeds), and candidates whose default policy misses issue 20's stock rule (under
    half of the episodes crashed, at 0.9 x idle's speed) rank after those that meet it.
@@ -33,9 +35,10 @@ Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pa
 
 from __future__ import annotations
 
+import hashlib
 import json
 import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -121,27 +124,84 @@ def lever_variants(cfg: RecipeConfig, trial: optuna.trial.FrozenTrial) -> list[V
 
 
 def check_all(
-    cfg: RecipeConfig, variants: list[Variant], root: Path, progress: bool = True
+    cfg: RecipeConfig,
+    variants: list[Variant],
+    root: Path,
+    progress: bool = True,
+    study: optuna.Study | None = None,
 ) -> list[dict[str, Any]]:
     """:func:`check_seed` of every variant and check seed, the rows in that order. With
     ``workers`` > 1, the checks run that many at a time in processes, as ``bgap.train`` runs
     trainings side by side (each seeds itself: the same rows as one after the other);
-    trainings too short to pay for a process's start run here."""
+    trainings too short to pay for a process's start run here.
+
+    With ``study``, each finished row is kept in the study's attributes (:func:`kept_row`)
+    and a row found there is not trained again: the check resumes from the study's trial log
+    (``bgap.pipeline trials``) on a machine that has none of its run folders."""
     calls = [(v, seed) for v in variants for seed in cfg.check_seeds]
-    if cfg.workers <= 1 or len(calls) <= 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
-        return [check_seed(cfg, v, seed, root, progress) for v, seed in calls]
+    found = {} if study is None else study.user_attrs
+    rows: dict[int, dict[str, Any]] = {}
+    for i, (v, seed) in enumerate(calls):
+        if (kept := found.get(check_key(cfg, v, seed))) is not None:
+            rows[i] = kept["row"] | {"trial": v.label, "run_dir": str(root / f"{v.folder}-s{seed}")}
+    todo = [i for i in range(len(calls)) if i not in rows]
+
+    def finished(i: int, row: dict[str, Any]) -> None:
+        rows[i] = row
+        if study is not None:
+            v, seed = calls[i]
+            study.set_user_attr(check_key(cfg, v, seed), kept_row(row))
+
+    if cfg.workers <= 1 or len(todo) <= 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
+        for i in todo:
+            finished(i, check_seed(cfg, *calls[i], root, progress))
+        return [rows[i] for i in range(len(calls))]
     # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(min(cfg.workers, len(calls)), context) as pool:
-        futures = [pool.submit(_check_worker, cfg, v, seed, root) for v, seed in calls]
+    with ProcessPoolExecutor(min(cfg.workers, len(todo)), context) as pool:
+        futures = {pool.submit(_check_worker, cfg, *calls[i], root): i for i in todo}
         try:
-            return [future.result() for future in futures]
+            for future in as_completed(futures):
+                finished(futures[future], future.result())
         except KeyboardInterrupt:
             pool.shutdown(wait=True, cancel_futures=True)
             raise Interrupted(
-                f"the check stopped; its finished trainings are kept in {root} and are reused "
-                "when the same command runs again"
+                f"the check stopped; its finished trainings are kept in {root} (and their rows "
+                "in the study, saved with its trial log) and are reused when the same command "
+                "runs again"
             ) from None
+    return [rows[i] for i in range(len(calls))]
+
+
+def check_key(cfg: RecipeConfig, v: Variant, seed: int) -> str:
+    """The study attribute that keeps the check's row of ``v`` with ``seed``: a hash of what
+    decides the row (the training's settings, the validation episodes, what is measured),
+    not of the variant's label or folder."""
+    what = {
+        "train": sorted(train_overrides(cfg, v, seed)),
+        "episodes": cfg.check_episodes,
+        "mode": cfg.mode,
+        "stock_check": cfg.stock_check,
+    }
+    return "check-" + hashlib.sha1(json.dumps(what, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def kept_row(row: dict[str, Any]) -> dict[str, Any]:
+    """A finished check row as a study attribute (JSON): the row and its training's
+    validation curve (``evaluations.csv``'s collision % and speed, for the learning curves'
+    figure once the run folder is gone)."""
+    curve = None
+    evaluations = Path(row["run_dir"]) / "evaluations.csv"
+    if evaluations.exists():
+        ev = pd.read_csv(evaluations)
+        curve = {key: ev[key].tolist() for key in CURVE_KEYS if key in ev}
+    return json.loads(json.dumps({"row": row, "curve": curve}, default=float))
+
+
+CURVE_KEYS = tuple(
+    f"{who}{key}" for who in ("", "idle_", "rule_") for key in ("collision_pct", "avg_speed")
+) + ("gradient_updates",)
+"""The columns of a training's ``evaluations.csv`` that the learning curves plot."""
 
 
 def _check_worker(cfg: RecipeConfig, v: Variant, seed: int, root: Path) -> dict[str, Any]:
@@ -149,19 +209,22 @@ def _check_worker(cfg: RecipeConfig, v: Variant, seed: int, root: Path) -> dict[
     return check_seed(cfg, v, seed, root, progress=False)
 
 
+def train_overrides(cfg: RecipeConfig, v: Variant, seed: int) -> list[str]:
+    """The training settings of ``v`` with ``seed``: the trial's settings with this run's
+    profile (the same budget, part of the study's identity, and the periodic validation
+    whose curves the check plots)."""
+    overrides = [o for o in v.overrides if not o.startswith(("seed=", "profile.", "profile="))]
+    budget = [f"profile.{key}={'null' if value is None else value}" for key, value in
+              asdict(cfg.profile).items() if key != "name"]  # fmt: skip
+    return [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"]
+
+
 def check_seed(
     cfg: RecipeConfig, v: Variant, seed: int, root: Path, progress: bool
 ) -> dict[str, Any]:
     """Train ``v``'s settings with training seed ``seed`` (reused once finished); its row:
     the policy's, the idle ego's and the rule-based ego's validation figures."""
-    # The trial's settings with this run's profile: the same budget (part of the study's
-    # identity), and the periodic validation whose curves the check plots.
-    overrides = [o for o in v.overrides if not o.startswith(("seed=", "profile.", "profile="))]
-    budget = [f"profile.{key}={'null' if value is None else value}" for key, value in
-              asdict(cfg.profile).items() if key != "name"]  # fmt: skip
-    tcfg = validate(
-        compose("train", [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"])
-    )
+    tcfg = validate(compose("train", train_overrides(cfg, v, seed)))
     run_dir = root / f"{v.folder}-s{seed}"
     tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
     train(replace(tcfg, resume=True), progress=progress)  # reused once finished
@@ -302,13 +365,14 @@ def check_levers(
     root: Path,
     out: Path,
     progress: bool,
+    study: optuna.Study | None = None,
 ) -> dict[str, Path]:
     """The chosen ``trial`` with each lever switched (:func:`lever_variants`), checked as
     the candidates were (the same seeds and validation episodes): ``levers.csv`` (lever x
     seed) and ``levers.md``, each lever's figures beside the recipe's (``summary``'s row of
     ``trial``) and how far it moves the objective."""
     variants = lever_variants(cfg, trial)
-    table = pd.DataFrame(check_all(cfg, variants, root, progress))
+    table = pd.DataFrame(check_all(cfg, variants, root, progress, study))
     write_atomic(out / "levers.csv", lambda p: table.to_csv(p, index=False))
     chosen = summary[summary.trial == trial.number]
     levers = choose_by_rule(cfg, table) if len(table) else chosen.iloc[:0]
@@ -381,12 +445,33 @@ def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
     return order.reset_index(drop=True)
 
 
-def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
-    """Validation collision % and speed against gradient updates, one line per seed."""
+def curves(run_dirs: list[str], study: optuna.Study | None = None) -> dict[str, pd.DataFrame]:
+    """Each training's validation curve by its run folder's name: its ``evaluations.csv``,
+    or where the folder is gone, the curve its check row kept in ``study``
+    (:func:`kept_row`); trainings with neither are left out."""
+    kept = {}
+    if study is not None:
+        kept = {
+            Path(attr["row"]["run_dir"]).name: attr["curve"]
+            for key, attr in study.user_attrs.items()
+            if key.startswith("check-") and attr.get("curve")
+        }
+    found = {}
+    for run_dir in run_dirs:
+        name, evaluations = Path(run_dir).name, Path(run_dir) / "evaluations.csv"
+        if evaluations.exists():
+            found[name] = pd.read_csv(evaluations)
+        elif name in kept:
+            found[name] = pd.DataFrame(kept[name])
+    return found
+
+
+def plot_curves(found: dict[str, pd.DataFrame], path: Path, title: str) -> None:
+    """Validation collision % and speed against gradient updates, one line per seed
+    (:func:`curves`)."""
     plt = pyplot()
 
-    run_dirs = [d for d in run_dirs if (Path(d) / "evaluations.csv").exists()]
-    if not run_dirs:  # trained without periodic validation: say so in the figure itself
+    if not found:  # trained without periodic validation: say so in the figure itself
         fig, ax = plt.subplots(figsize=(6, 1.5))
         ax.text(0.5, 0.5, "no periodic validation in these trainings\n"
                 "(profile.eval_every_episodes=0)", ha="center", va="center")  # fmt: skip
@@ -399,18 +484,17 @@ def plot_curves(run_dirs: list[str], path: Path, title: str) -> None:
 
     thousands = FuncFormatter(lambda v, _: f"{v / 1000:g}k")
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
-    for run_dir in run_dirs:
-        ev = pd.read_csv(Path(run_dir) / "evaluations.csv")
-        label = Path(run_dir).name.rsplit("-", 1)[-1]
+    for name, ev in found.items():
+        label = name.rsplit("-", 1)[-1]
         for ax, key in zip(axes, ("collision_pct", "avg_speed"), strict=True):
             ax.plot(ev.gradient_updates, ev[key].rolling(5, min_periods=1).mean(), label=label)
+    first = next(iter(found.values()))
     for ax, key, label in zip(
         axes, ("collision_pct", "avg_speed"), ("collisions [% episodes]", "mean speed [m/s]"),
         strict=True,
     ):  # fmt: skip
         for name, style in (("idle", "--"), ("rule", ":")):
-            ref = pd.read_csv(Path(run_dirs[0]) / "evaluations.csv")[f"{name}_{key}"].iloc[-1]
-            ax.axhline(ref, ls=style, color="gray", label=name)
+            ax.axhline(first[f"{name}_{key}"].iloc[-1], ls=style, color="gray", label=name)
         ax.set_xlabel("gradient updates")
         ax.xaxis.set_major_formatter(thousands)
         ax.set_ylabel(f"validation {label}\n(running mean of 5 evaluations)")
@@ -475,7 +559,7 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     )
     root = Path(cfg.root) / "sweeps" / study_name(cfg) / "check"  # beside the sweep's trials
     chosen_from = candidates(study, cfg.candidates)
-    rows = check_all(cfg, [variant(t) for t in chosen_from], root, progress)
+    rows = check_all(cfg, [variant(t) for t in chosen_from], root, progress, study)
     table = pd.DataFrame(rows)
     write_atomic(out / "candidates.csv", lambda p: table.to_csv(p, index=False))
     params = {t.number: t.params for t in chosen_from}
@@ -488,12 +572,12 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
     best = summary.iloc[0]
     trial = next(t for t in chosen_from if t.number == best.trial)
     plot_curves(
-        list(table[table.trial == best.trial].run_dir),
+        curves(list(table[table.trial == best.trial].run_dir), study),
         out / "learning_curves.png",
         f"recipe (trial {trial.number}): validation during training, each seed",
     )
     if cfg.mode == "rule":  # levers.md also without levers: the pipeline declares it
-        paths |= check_levers(cfg, trial, summary, root, out, progress)
+        paths |= check_levers(cfg, trial, summary, root, out, progress, study)
     tcfg = validate(compose("train", trial.user_attrs["overrides"]))
     preset_dir = Path(cfg.preset_dir or Path(cfg.root) / "presets")
     note = (
