@@ -471,10 +471,11 @@ def plot_curves(found: dict[str, pd.DataFrame], path: Path, title: str) -> None:
     (:func:`curves`)."""
     plt = pyplot()
 
-    if not found:  # trained without periodic validation: say so in the figure itself
-        fig, ax = plt.subplots(figsize=(6, 1.5))
-        ax.text(0.5, 0.5, "no periodic validation in these trainings\n"
-                "(profile.eval_every_episodes=0)", ha="center", va="center")  # fmt: skip
+    if not found:  # no curve to draw: say why in the figure itself
+        fig, ax = plt.subplots(figsize=(6, 2))
+        ax.text(0.5, 0.5, "no validation curves: trained without periodic validation\n"
+                "(profile.eval_every_episodes=0), or their run folders are gone\n"
+                "and the study kept none", ha="center", va="center")  # fmt: skip
         ax.set_axis_off()
         write_atomic(path, lambda p: fig.savefig(p, dpi=110))
         plt.close(fig)
