@@ -466,16 +466,20 @@ def curves(run_dirs: list[str], study: optuna.Study | None = None) -> dict[str, 
     return found
 
 
-def plot_curves(found: dict[str, pd.DataFrame], path: Path, title: str) -> None:
+NO_VALIDATION = "no periodic validation in these trainings\n(profile.eval_every_episodes=0)"
+"""The learning curves' text where the trainings kept no validation curve."""
+
+
+def plot_curves(
+    found: dict[str, pd.DataFrame], path: Path, title: str, why_none: str = NO_VALIDATION
+) -> None:
     """Validation collision % and speed against gradient updates, one line per seed
-    (:func:`curves`)."""
+    (:func:`curves`); without any, ``why_none`` in their place."""
     plt = pyplot()
 
     if not found:  # no curve to draw: say why in the figure itself
-        fig, ax = plt.subplots(figsize=(6, 2))
-        ax.text(0.5, 0.5, "no validation curves: trained without periodic validation\n"
-                "(profile.eval_every_episodes=0), or their run folders are gone\n"
-                "and the study kept none", ha="center", va="center")  # fmt: skip
+        fig, ax = plt.subplots(figsize=(6, 1.5))
+        ax.text(0.5, 0.5, why_none, ha="center", va="center")
         ax.set_axis_off()
         write_atomic(path, lambda p: fig.savefig(p, dpi=110))
         plt.close(fig)
@@ -572,10 +576,15 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         write_atomic(out / "table.md", markdown(cfg, summary, params))
     best = summary.iloc[0]
     trial = next(t for t in chosen_from if t.number == best.trial)
+    run_dirs = list(table[table.trial == best.trial].run_dir)
     plot_curves(
-        curves(list(table[table.trial == best.trial].run_dir), study),
+        curves(run_dirs, study),
         out / "learning_curves.png",
         f"recipe (trial {trial.number}): validation during training, each seed",
+        NO_VALIDATION
+        if any(Path(d).exists() for d in run_dirs)
+        else "the run folders are gone and the study kept no curves\n"
+        "(rows reused from its trial log)",
     )
     if cfg.mode == "rule":  # levers.md also without levers: the pipeline declares it
         paths |= check_levers(cfg, trial, summary, root, out, progress, study)
