@@ -143,7 +143,8 @@ def check_all(
     rows: dict[int, dict[str, Any]] = {}
     for i, (v, seed) in enumerate(calls):
         if (kept := found.get(check_key(cfg, v, seed))) is not None:
-            rows[i] = kept["row"] | {"trial": v.label, "run_dir": str(root / f"{v.folder}-s{seed}")}
+            row = dict(kept["row"])  # (key, value) pairs: the row's column order
+            rows[i] = row | {"trial": v.label, "run_dir": str(root / f"{v.folder}-s{seed}")}
     todo = [i for i in range(len(calls)) if i not in rows]
 
     def finished(i: int, row: dict[str, Any]) -> None:
@@ -187,15 +188,17 @@ def check_key(cfg: RecipeConfig, v: Variant, seed: int) -> str:
 
 
 def kept_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A finished check row as a study attribute (JSON): the row and its training's
-    validation curve (``evaluations.csv``'s collision % and speed, for the learning curves'
-    figure once the run folder is gone)."""
+    """A finished check row as a study attribute (JSON): the row (key, value pairs) and its
+    training's validation curve (``evaluations.csv``'s collision % and speed, for the
+    learning curves' figure once the run folder is gone)."""
     curve = None
     evaluations = Path(row["run_dir"]) / "evaluations.csv"
     if evaluations.exists():
         ev = pd.read_csv(evaluations)
         curve = {key: ev[key].tolist() for key in CURVE_KEYS if key in ev}
-    return json.loads(json.dumps({"row": row, "curve": curve}, default=float))
+    # the row as (key, value) pairs: a trial log sorts a dict's keys, and the reused rows
+    # would give candidates.csv its columns in another order
+    return json.loads(json.dumps({"row": list(row.items()), "curve": curve}, default=float))
 
 
 CURVE_KEYS = tuple(
@@ -452,7 +455,7 @@ def curves(run_dirs: list[str], study: optuna.Study | None = None) -> dict[str, 
     kept = {}
     if study is not None:
         kept = {
-            Path(attr["row"]["run_dir"]).name: attr["curve"]
+            Path(dict(attr["row"])["run_dir"]).name: attr["curve"]
             for key, attr in study.user_attrs.items()
             if key.startswith("check-") and attr.get("curve")
         }
