@@ -196,6 +196,14 @@ def test_relock_compares_a_checkpoints_state_by_content(tmp_path):
     other_stream = state()
     other_stream["env"]["rngs"][0]["s"] = 12
     assert not _same(base, write("stream", other_stream))
+    # the batched learner's state holds tensors (Adam's moments): compared exactly
+    import torch
+
+    moments = {"exp_avg": torch.tensor([0.5, 0.25])}
+    with_t = write("tensors", state(adam=moments))
+    assert _same(with_t, write("tensors2", state(adam={"exp_avg": torch.tensor([0.5, 0.25])})))
+    assert not _same(with_t, write("tensors3", state(adam={"exp_avg": torch.tensor([0.5, 0.3])})))
+    assert not _same(with_t, write("tensors4", state(adam={"exp_avg": np.array([0.5, 0.25])})))
 
 
 def test_the_replay_cells_in_params_name_every_replayed_table():

@@ -329,9 +329,15 @@ def _same(a: Path, b: Path) -> bool:
 
 def _kept(old: Any, new: Any) -> bool:
     """Whether ``new`` holds every setting of ``old`` with the same value (dicts may gain
-    keys; sequences and arrays must be equal item by item, as anything else)."""
+    keys; sequences, arrays and tensors must be equal item by item, as anything else)."""
     if isinstance(old, dict) and isinstance(new, dict):
         return all(k in new and _kept(v, new[k]) for k, v in old.items())
+    if type(old).__module__.startswith("torch") or type(new).__module__.startswith("torch"):
+        import torch  # a checkpoint's optimiser or learner state: tensors, compared exactly
+
+        if isinstance(old, torch.Tensor) or isinstance(new, torch.Tensor):
+            tensors = isinstance(old, torch.Tensor) and isinstance(new, torch.Tensor)
+            return tensors and old.dtype == new.dtype and torch.equal(old, new)
     if isinstance(old, np.ndarray) or isinstance(new, np.ndarray):
         arrays = isinstance(old, np.ndarray) and isinstance(new, np.ndarray)
         return arrays and old.dtype == new.dtype and np.array_equal(old, new, equal_nan=True)
