@@ -206,6 +206,48 @@ def test_relock_compares_a_checkpoints_state_by_content(tmp_path):
     assert not _same(with_t, write("tensors4", state(adam={"exp_avg": np.array([0.5, 0.25])})))
 
 
+def test_sb3_models_and_replay_buffers_compare_without_wall_clocks(tmp_path):
+    """Two SB3 trainings of one seed differ in their archives' start time, their episodes'
+    wall times and their spaces' unseeded samplers, and are the same result; a changed
+    weight or replay buffer is not."""
+    import pickle
+
+    import gymnasium as gym
+    import torch
+    from stable_baselines3 import DQN
+    from stable_baselines3.common.monitor import Monitor
+
+    from bgap.experiments.pipeline import _same
+
+    def trained(name: str) -> DQN:
+        env = Monitor(gym.make("CartPole-v1"))
+        model = DQN("MlpPolicy", env, seed=3, learning_starts=20, buffer_size=200,
+                    policy_kwargs={"net_arch": [8]})  # fmt: skip
+        model.learn(60)
+        model.observation_space.sample()  # the sampler moves: not part of the result
+        model.save(tmp_path / name)
+        return model
+
+    # (buffers pickled after both saves: pickling caches __slotnames__ on the buffer's
+    # class, which the next archive's readable class description would then print)
+    a, b = trained("a"), trained("b")
+    for name, model in (("a", a), ("b", b)):
+        (tmp_path / f"{name}.pkl").write_bytes(pickle.dumps(model.replay_buffer))
+    assert (tmp_path / "a.zip").read_bytes() != (tmp_path / "b.zip").read_bytes()
+    assert _same(tmp_path / "a.zip", tmp_path / "b.zip")
+    for name in ("a", "b"):  # compared as the checkpoint's replay.pkl is
+        (tmp_path / name).mkdir()
+        (tmp_path / f"{name}.pkl").rename(tmp_path / name / "replay.pkl")
+    assert _same(tmp_path / "a" / "replay.pkl", tmp_path / "b" / "replay.pkl")
+    b.replay_buffer.rewards[0] += 1.0
+    (tmp_path / "b" / "replay.pkl").write_bytes(pickle.dumps(b.replay_buffer))
+    assert not _same(tmp_path / "a" / "replay.pkl", tmp_path / "b" / "replay.pkl")
+    with torch.no_grad():
+        next(b.policy.parameters())[0, 0] += 1.0
+    b.save(tmp_path / "c")
+    assert not _same(tmp_path / "a.zip", tmp_path / "c.zip")
+
+
 def test_the_replay_cells_in_params_name_every_replayed_table():
     """params.yaml spells out evaluate's grid.replays (DVC builds no list from a dict): it
     must name each table replay_data writes, at its density, under the pipeline's root."""

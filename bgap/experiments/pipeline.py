@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import ast
 import filecmp
+import json
 import os
 import pickle
 import re
@@ -304,16 +305,17 @@ TB_EVENTS = "events.out.tfevents"
 def _same(a: Path, b: Path) -> bool:
     """Whether two output files hold the same result. Byte for byte, but for zip archives
     (Stable-Baselines3's models), whose members are compared rather than the archives: each
-    entry carries the time it was written, and the human-readable part of SB3's ``data``
-    prints object addresses (``<function ... at 0x7f...>``) beside the serialised values.
-    And for a run's resolved settings (``config.yaml``), where ``b`` may hold settings that
-    ``a``'s code did not have: every setting of ``a`` must be in ``b`` with the same value
-    (a setting added with a default that reproduces the old results; the other outputs show
-    whether it does). Likewise a training checkpoint's ``state.pkl`` (counters, running
-    statistics, the environments' state), which may gain fields that later code keeps."""
+    entry carries the time it was written, and SB3's ``data`` holds what no seed fixes
+    (:func:`_sb3_data`). And for a run's resolved settings (``config.yaml``), where ``b``
+    may hold settings that ``a``'s code did not have: every setting of ``a`` must be in
+    ``b`` with the same value (a setting added with a default that reproduces the old
+    results; the other outputs show whether it does). Likewise a training checkpoint's
+    ``state.pkl`` (counters, running statistics, the environments' state), which may gain
+    fields that later code keeps, and SB3's replay buffer (``replay.pkl``), compared by its
+    fields (:func:`_kept`)."""
     if a.name == CONFIG and b.name == CONFIG:
         return _kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
-    if a.name == b.name == CHECKPOINT_STATE:
+    if a.name == b.name and a.name in (CHECKPOINT_STATE, REPLAY):
         return _kept(pickle.loads(a.read_bytes()), pickle.loads(b.read_bytes()))
     if a.suffix != ".zip":
         return filecmp.cmp(a, b, shallow=False)
@@ -321,10 +323,35 @@ def _same(a: Path, b: Path) -> bool:
         if za.namelist() != zb.namelist():
             return False
         return all(
-            _unaddressed(za.read(n)) == _unaddressed(zb.read(n)) if n == "data"
+            _sb3_data(za.read(n)) == _sb3_data(zb.read(n)) if n == "data"
             else za.read(n) == zb.read(n)
             for n in za.namelist()
         )  # fmt: skip
+
+
+REPLAY = "replay.pkl"
+"""An SB3 checkpoint's replay buffer (:mod:`bgap.experiments.training`)."""
+
+
+def _sb3_data(data: bytes) -> dict[str, Any]:
+    """SB3's ``data`` member without what no seed fixes: object addresses in its readable
+    part (``<function ... at 0x7f...>``), the training's start (``start_time``, wall clock),
+    its episodes' wall times (``ep_info_buffer``'s ``t``; returns and lengths are kept), and
+    the spaces' pickled sampler (unseeded, never used in training; the spaces' readable
+    fields are kept). The weights and optimiser state are separate members."""
+    import base64
+
+    import cloudpickle  # SB3's own serialiser (a dependency of SB3)
+
+    found = json.loads(_unaddressed(data))
+    found.pop("start_time", None)
+    for key in ("observation_space", "action_space"):
+        if isinstance(found.get(key), dict):
+            found[key].pop(":serialized:", None)
+    if isinstance(found.get("ep_info_buffer"), dict):
+        episodes = cloudpickle.loads(base64.b64decode(found["ep_info_buffer"][":serialized:"]))
+        found["ep_info_buffer"] = [{k: v for k, v in e.items() if k != "t"} for e in episodes]
+    return found
 
 
 def _kept(old: Any, new: Any) -> bool:
@@ -341,6 +368,9 @@ def _kept(old: Any, new: Any) -> bool:
     if isinstance(old, np.ndarray) or isinstance(new, np.ndarray):
         arrays = isinstance(old, np.ndarray) and isinstance(new, np.ndarray)
         return arrays and old.dtype == new.dtype and np.array_equal(old, new, equal_nan=True)
+    if type(old) is type(new) and type(old).__eq__ is object.__eq__ and hasattr(old, "__dict__"):
+        # an object without its own equality (a replay buffer): by its fields
+        return _kept(vars(old), vars(new))
     if isinstance(old, (list, tuple)) and isinstance(new, (list, tuple)):
         return len(old) == len(new) and all(_kept(x, y) for x, y in zip(old, new, strict=True))
     return bool(old == new)
