@@ -301,3 +301,19 @@ def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "table").write_text("1\n")
     assert _upstream_first(tmp_path, ["reader"])[1] == {"reader"}
+
+
+def test_tensorboard_scalars_compare_without_the_clocks_own(tmp_path):
+    """SB3 logs its speed (time/fps) beside the training's scalars: a rehearsal compares
+    the training's, not the machine's."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    from bgap.experiments.pipeline import _scalars
+
+    for name, fps in (("a", 100.0), ("b", 140.0)):
+        with SummaryWriter(tmp_path / name) as writer:
+            writer.add_scalar("rollout/ep_rew_mean", 2.5, 10)
+            writer.add_scalar("time/fps", fps, 10)
+    assert (
+        _scalars(tmp_path / "a") == _scalars(tmp_path / "b") == [("rollout/ep_rew_mean", 10, 2.5)]
+    )

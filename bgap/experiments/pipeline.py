@@ -381,7 +381,8 @@ def _unaddressed(data: bytes) -> bytes:
 
 
 def _scalars(folder: Path) -> list[tuple[str, int, float]]:
-    """Every scalar (tag, step, value) TensorBoard logged in ``folder``, wall times aside."""
+    """Every scalar (tag, step, value) TensorBoard logged in ``folder``, wall times aside:
+    event times and the clock's own scalars (SB3's ``time/fps``, ``time/time_elapsed``)."""
     # Imported here: TensorBoard's reader loads only when a rehearsal is compared.
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -389,8 +390,13 @@ def _scalars(folder: Path) -> list[tuple[str, int, float]]:
     for events in sorted(folder.glob(f"{TB_EVENTS}*")):
         acc = EventAccumulator(str(events), size_guidance={"scalars": 0})
         acc.Reload()
-        found += [(tag, e.step, e.value) for tag in acc.Tags()["scalars"] for e in acc.Scalars(tag)]
+        tags = [tag for tag in acc.Tags()["scalars"] if tag not in WALL_CLOCK_TAGS]
+        found += [(tag, e.step, e.value) for tag in tags for e in acc.Scalars(tag)]
     return sorted(found)
+
+
+WALL_CLOCK_TAGS = ("time/fps", "time/time_elapsed")
+"""SB3's logged scalars that measure the machine, not the training."""
 
 
 def _code_files(root: Path) -> list[str]:
