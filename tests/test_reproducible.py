@@ -14,7 +14,6 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 RERUNNING = {
-    "recipe_learner@qrdqn",
     "recipe_learner@ppo",
 }
 """Stages whose committed lock predates code that changes what they compute, being rerun,
