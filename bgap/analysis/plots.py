@@ -169,7 +169,12 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     fig, axes = plt.subplots(len(densities), len(mixes), squeeze=False,
                              figsize=(2.6 * len(mixes), 2.6 * len(densities)))  # fmt: skip
     trained = g[g.arm != ""][["arm", "family"]].drop_duplicates()
-    colors = {tuple(k): f"C{i}" for i, k in enumerate(trained.itertuples(index=False))}
+    # A colour per arm and a marker per policy family: one colour per (arm, family) ran out
+    # of matplotlib's ten once the learner arms joined (C7, grey, is idle's)
+    palette = [f"C{i}" for i in range(10) if i != 7]
+    arm_color = {a: palette[i % len(palette)] for i, a in enumerate(dict.fromkeys(trained.arm))}
+    markers = {"behavior_rich": "o", "default": "D"}
+    colors = {(a, f): arm_color[a] for a, f in trained.itertuples(index=False)}
     for r, density in enumerate(densities):
         for c, mix in enumerate(mixes):
             ax, here = axes[r, c], g[(g.density == density) & (g.mix == mix)]
@@ -186,7 +191,9 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
                 if style is None and (s.arm, s.family) not in colors:  # random, left
                     continue
                 if style is None:
-                    style = dict(marker="o", ms=5, color=colors[(s.arm, s.family)])
+                    style = dict(
+                        marker=markers.get(s.family, "o"), ms=5, color=colors[(s.arm, s.family)]
+                    )
                 ax.errorbar(s.per_100km, s.avg_speed, capsize=2, lw=0.8, ls="none",
                             xerr=[[max(s.per_100km - s.per_100km_lo, 0)],
                                   [max(s.per_100km_hi - s.per_100km, 0)]],
@@ -200,13 +207,15 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
                 ax.set_xlabel("collisions per 100 km", fontsize=8)
             if c == 0:
                 ax.set_ylabel("speed [m/s]", fontsize=8)
-    handles = [plt.Line2D([], [], marker="o", ls="none", color=col,
+    handles = [plt.Line2D([], [], marker=markers.get(family, "o"), ls="none", color=col,
                           label=f"{arm} {family.replace('_', '-')}")
                for (arm, family), col in colors.items()]  # fmt: skip
     handles += [plt.Line2D([], [], marker="*", ms=11, ls="none", color="k", label="rule-based"),
                 plt.Line2D([], [], marker="s", ls="none", color="0.5", label="idle")]  # fmt: skip
-    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 6), fontsize=7)
-    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    ncol = min(len(handles), 8)
+    fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=7)
+    rows = -(-len(handles) // ncol)  # the legend's rows, kept clear of the x labels
+    fig.tight_layout(rect=(0, (0.02 + 0.035 * rows) * 2 / len(densities), 1, 1))
     write_atomic(path, lambda p: fig.savefig(p, dpi=110))
     plt.close(fig)
     return True
