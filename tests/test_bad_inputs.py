@@ -195,6 +195,10 @@ CASES = [
     ("cmetric.boundary", ["{tmp}/good.csv", "--out", "{tmp}/done"], r"json.* from an earlier"),
     ("cmetric.boundary", ["{tmp}/nothing"], r"nothing: no such file"),
     ("figures", ["{tmp}/evaluation"], r"episodes.parquet cannot be read as Parquet"),
+    # --- select: no run folders, a bad group size, an earlier selection
+    ("select", ["{tmp}/nothing", "--out", "{tmp}/kept"], r"no run folders .* in .*nothing"),
+    ("select", ["{tmp}/nothing", "--out", "{tmp}/k", "--group", "0"], r"--group: .0. must be"),
+    ("select", ["{tmp}/nothing", "--out", "{tmp}/done"], r"done holds files no bgap command wrote"),
     # --- parity: the fast mode's rows would replace the parity stage's own
     (
         "parity",
@@ -233,6 +237,7 @@ MODULES = {
     "parity": "bgap.parity",
     "bench": "bgap.bench",
     "figures": "bgap.figures",
+    "select": "bgap.select",
     "cmetric.boundary": "bgap.cmetric.boundary",
 }
 

@@ -31,6 +31,7 @@ COMMANDS = (
     "bgap.cmetric.boundary",
     "bgap.datasets",
     "bgap.figures",
+    "bgap.select",
     "bgap.parity",
     "bgap.bench",
     "bgap.pipeline",
@@ -41,6 +42,7 @@ MAX_LINES = 40
 ARGPARSE_COMMANDS = (
     "bgap.cmetric.boundary",
     "bgap.figures",
+    "bgap.select",
     "bgap.parity",
     "bgap.bench",
     "bgap.pipeline",

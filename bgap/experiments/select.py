@@ -1,0 +1,221 @@
+"""Training seeds chosen on validation: ``python -m bgap.select RUNS --group K --out DIR``.
+
+A learner that trains ``K`` seeds and keeps the one its validation prefers. Per density and
+policy family, the run folders under ``RUNS`` (in the order of their training seeds) fall
+into consecutive groups of ``K``; each run's validation-chosen checkpoint plays
+``--episodes`` validation episodes of its own training traffic (seeds ``val_seed + k``, apart
+from the test's) beside the rule-based ego, and is scored by its half of issue 32's recipe
+objective (:func:`score`). The lowest score of each group is kept (the lower seed on a tie).
+
+Writes a copy of each kept run folder to ``--out`` (``<density>/<run>``, without its resume
+checkpoints: what ``bgap.evaluate models=[OUT]`` plays) and the table of every run's
+validation figures, score and group to ``--table`` (``selection.csv``, ``selection.md``).
+The unit of such a learner is its group: ``G`` groups are ``G`` independent draws of it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+from concurrent.futures import ProcessPoolExecutor
+from functools import partial
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+from omegaconf import OmegaConf
+
+from bgap.agents.policies import baseline
+from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, speed_shortfall
+from bgap.common.cli import OneLineParser, positive, run
+from bgap.common.config import validate
+from bgap.common.errors import ConfigError
+from bgap.common.runs import (
+    CONFIG,
+    MODEL,
+    model_file,
+    only_metadata,
+    refuse_foreign,
+    save_run_metadata,
+    write_atomic,
+)
+from bgap.common.threads import set_threads
+from bgap.experiments.config import ExperimentConfig, compose
+from bgap.experiments.sweep import validation_figures
+from bgap.experiments.training import training_config
+from bgap.traffic.scenario import env_config
+
+__all__ = ["groups", "main", "markdown", "run_config", "runs", "score", "select"]
+
+SKIPPED = ("checkpoints", "tb")
+"""What a kept run's copy leaves out: resume state and TensorBoard logs (evaluation reads
+neither)."""
+
+
+def score(
+    policy: str,
+    mine: dict[str, float],
+    rule: dict[str, float],
+    floor: float = RULE_FLOOR,
+    margin: float = STOCK_MARGIN,
+) -> float:
+    """A run's half of :func:`bgap.analysis.stats.rule_objective` (lower is better): below
+    ``floor`` x the rule-based ego's speed, 1000 + the shortfall in % of that floor; else,
+    behaviour-rich, collisions per 100 km minus the rule-based ego's, and default (in stock
+    traffic), collision % minus the rule-based ego's minus ``margin``."""
+    short = speed_shortfall(mine["avg_speed"], rule["avg_speed"], floor)
+    if short > 0:
+        return 1000.0 + short
+    if policy == "default":
+        return mine["collision_pct"] - rule["collision_pct"] - margin
+    return mine["per_100km"] - rule["per_100km"]
+
+
+def run_config(folder: Path) -> ExperimentConfig:
+    """A run folder's settings (its ``config.yaml``) as the config it trained under: its
+    traffic, environment and policy family, whatever was set on its command line."""
+    stored = OmegaConf.load(folder / CONFIG)
+    return validate(OmegaConf.merge(compose("train", []), stored))
+
+
+def runs(root: Path) -> pd.DataFrame:
+    """Every run folder under ``root`` (one with ``model.zip`` and ``config.yaml``): its path,
+    density, policy family and training seed."""
+    rows = []
+    for model in sorted(root.rglob(MODEL)):
+        folder = model.parent
+        if folder.name.startswith("checkpoints") or not (folder / CONFIG).exists():
+            continue
+        cfg = run_config(folder)
+        rows.append({"run": folder, "density": cfg.env.name, "policy": cfg.policy,
+                     "seed": cfg.seed})  # fmt: skip
+    if not rows:
+        raise FileNotFoundError(f"no run folders ({MODEL} with {CONFIG}) in {root}")
+    return pd.DataFrame(rows).sort_values(["density", "policy", "seed"], ignore_index=True)
+
+
+def groups(table: pd.DataFrame, k: int) -> pd.Series:
+    """Each run's group: consecutive runs of ``k`` seeds within its density and family."""
+    for (density, policy), part in table.groupby(["density", "policy"]):
+        if len(part) % k:
+            raise ConfigError(
+                f"--group {k} does not divide the {len(part)} {policy} runs of {density} "
+                f"(seeds {part.seed.tolist()}); train a multiple of {k} seeds, or give a "
+                f"--group that divides {len(part)}"
+            )
+    return table.groupby(["density", "policy"]).cumcount() // k
+
+
+def _validate(job: tuple[str, int]) -> dict[str, Any]:
+    """One run's chosen checkpoint and the rule-based ego on the same validation episodes
+    of its training traffic (``job``: the run folder, the number of episodes)."""
+    run_dir, episodes = job
+    cfg = run_config(Path(run_dir))
+    mine = validation_figures(str(model_file(run_dir, "best")), cfg, episodes)
+    rule_ego = baseline("rule", env_config(training_config(cfg)))
+    rule = validation_figures(rule_ego, cfg, episodes)
+    return {**mine, **{f"rule_{k}": v for k, v in rule.items()}}
+
+
+def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
+           workers: int = 1) -> pd.DataFrame:  # fmt: skip
+    """Validate every run under ``runs_dir``, keep the best of each group (copied under
+    ``out``), and write the table to ``table_dir``; returns it."""
+    for folder in dict.fromkeys((out, table_dir)):
+        refuse_foreign(folder)
+        if folder.is_dir() and any(folder.iterdir()) and not only_metadata(folder):
+            raise ConfigError(
+                f"{folder} holds an earlier selection; give another folder, or remove it to "
+                "select again"
+            )
+    settings = {"runs": str(runs_dir), "group": k, "episodes": episodes, "out": str(out),
+                "table": str(table_dir)}  # fmt: skip
+    for folder in dict.fromkeys((out, table_dir)):
+        save_run_metadata(folder, OmegaConf.create(settings))
+    table = runs(runs_dir)
+    table["group"] = groups(table, k)
+    jobs = [(str(row.run), episodes) for row in table.itertuples()]
+    if workers == 1:
+        figures = [_validate(job) for job in jobs]
+    else:  # spawned, as evaluate's workers: a fork would copy torch's OpenMP threads
+        context = get_context("spawn")
+        init = partial(set_threads, 1, 1)
+        with ProcessPoolExecutor(workers, context, initializer=init) as pool:
+            figures = list(pool.map(_validate, jobs))
+    table = pd.concat([table, pd.DataFrame(figures)], axis=1)
+    table["score"] = [
+        score(row.policy, {k: row[k] for k in ("collision_pct", "per_100km", "avg_speed")},
+              {k: row[f"rule_{k}"] for k in ("collision_pct", "per_100km", "avg_speed")})
+        for _, row in table.iterrows()
+    ]  # fmt: skip
+    best = table.sort_values("seed").groupby(["density", "policy", "group"]).score.idxmin()
+    table["kept"] = table.index.isin(best)
+    for row in table[table.kept].itertuples():
+        shutil.copytree(row.run, out / row.density / row.run.name,
+                        ignore=shutil.ignore_patterns(*SKIPPED))  # fmt: skip
+    table_dir.mkdir(parents=True, exist_ok=True)
+    written = table.assign(run=table.run.map(str))
+    write_atomic(table_dir / "selection.csv", lambda p: written.to_csv(p, index=False))
+    write_atomic(table_dir / "selection.md", markdown(written, k, episodes))
+    return table
+
+
+def markdown(table: pd.DataFrame, k: int, episodes: int) -> str:
+    """The selection as a page: per density and family, each run's validation figures."""
+    lines = [
+        f"# Training seeds chosen on validation: the best of each group of {k}",
+        "",
+        f"Each run's validation-chosen checkpoint on {episodes} validation episodes of its own "
+        "training traffic, beside the rule-based ego on the same episodes; score: its half of "
+        "issue 32's recipe objective (behaviour-rich: collisions per 100 km minus the "
+        "rule-based ego's; default: collision % minus the rule-based ego's minus "
+        f"{STOCK_MARGIN:g}; 1000 + the shortfall below {RULE_FLOOR:g} x its speed). Kept: the "
+        "lowest score of each group.",
+        "",
+        "| density | policy | group | seed | per 100 km | collision % | speed m/s | rule per "
+        "100 km / % / m/s | score | kept |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in table.itertuples():
+        lines.append(
+            f"| {r.density} | {r.policy} | {r.group} | {r.seed} | {r.per_100km:.2f} | "
+            f"{r.collision_pct:.1f} | {r.avg_speed:.2f} | {r.rule_per_100km:.2f} / "
+            f"{r.rule_collision_pct:.1f} / {r.rule_avg_speed:.2f} | {r.score:.2f} | "
+            f"{'**yes**' if r.kept else ''} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = OneLineParser(
+        prog="bgap.select",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("runs", help="a folder of run folders (bgap.train's run_dir=)")
+    parser.add_argument("--group", type=positive(int), default=3,
+                        help="seeds per group: the best of each is kept")  # fmt: skip
+    parser.add_argument("--episodes", type=positive(int), default=200,
+                        help="validation episodes per run")  # fmt: skip
+    parser.add_argument("--out", required=True, help="where the kept run folders are copied")
+    parser.add_argument("--table", default=None,
+                        help="where selection.csv and .md go (default: --out)")  # fmt: skip
+    parser.add_argument("--workers", type=positive(int), default=1,
+                        help="processes validating runs side by side")  # fmt: skip
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    table_dir = Path(args.table) if args.table else out
+    table = run(
+        "bgap.select",
+        lambda: select(Path(args.runs), out, table_dir, args.group, args.episodes, args.workers),
+        f"nothing was kept; remove {out} and rerun the command",
+    )
+    kept = table[table.kept]
+    for r in kept.itertuples():
+        print(f"kept {r.density} {r.policy} group {r.group}: seed {r.seed} (score {r.score:.2f})")
+    print(f"kept runs in {out}; table in {table_dir / 'selection.md'}")
+
+
+if __name__ == "__main__":
+    main()
