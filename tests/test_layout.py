@@ -269,7 +269,14 @@ def test_a_rehearsal_trains_every_arm_at_the_tiny_profile():
 
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     assert params["learner_arms"]  # the arms this checks
+    # a learner that keeps the best of each group of seeds: one seed each, groups of one
+    params["selections"] = {"learner-x-k3": {"runs": "learner-x-all", "group": 3, "episodes": 200}}
     rehearsal(params)
+    assert params["selections"]["learner-x-k3"] | {"runs": "learner-x-all"} == {
+        "runs": "learner-x-all",
+        "group": 1,
+        "episodes": 2,
+    }
     assert params["profile"] == "tiny"
     for entry in (*params["study"].values(), *params["learner_arms"].values()):
         assert entry["seeds"] == "[0]" and entry.get("profile", "tiny") == "tiny"

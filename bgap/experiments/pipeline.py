@@ -179,6 +179,8 @@ def rehearsal(params: dict) -> None:
         item.update(seeds="[0]", settings=item["settings"] + validate)
     for item in params.get("learner_arms", {}).values():  # (none before issue 32's arms)
         item.update(seeds="[0]", settings=item["settings"] + validate, profile="tiny")
+    for item in params.get("selections", {}).values():  # one seed per arm: groups of one
+        item.update(group=1, episodes=2)
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
