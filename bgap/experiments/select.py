@@ -26,7 +26,6 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from bgap.agents.policies import baseline
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, speed_shortfall
 from bgap.common.cli import OneLineParser, positive, run
 from bgap.common.config import validate
@@ -42,9 +41,7 @@ from bgap.common.runs import (
 )
 from bgap.common.threads import set_threads
 from bgap.experiments.config import ExperimentConfig, compose
-from bgap.experiments.sweep import validation_figures
-from bgap.experiments.training import training_config
-from bgap.traffic.scenario import env_config
+from bgap.experiments.sweep import figures_with_rule, split_rule
 
 __all__ = ["groups", "main", "markdown", "run_config", "runs", "score", "select"]
 
@@ -81,7 +78,7 @@ def run_config(folder: Path) -> ExperimentConfig:
 
 def runs(root: Path) -> pd.DataFrame:
     """Every run folder under ``root`` (one with ``model.zip`` and ``config.yaml``): its path,
-    density, policy family and training seed."""
+    density, policy family, training seed and config (:func:`run_config`)."""
     rows = []
     for model in sorted(root.rglob(MODEL)):
         folder = model.parent
@@ -89,7 +86,7 @@ def runs(root: Path) -> pd.DataFrame:
             continue
         cfg = run_config(folder)
         rows.append({"run": folder, "density": cfg.env.name, "policy": cfg.policy,
-                     "seed": cfg.seed})  # fmt: skip
+                     "seed": cfg.seed, "config": cfg})  # fmt: skip
     if not rows:
         raise FileNotFoundError(f"no run folders ({MODEL} with {CONFIG}) in {root}")
     return pd.DataFrame(rows).sort_values(["density", "policy", "seed"], ignore_index=True)
@@ -107,15 +104,11 @@ def groups(table: pd.DataFrame, k: int) -> pd.Series:
     return table.groupby(["density", "policy"]).cumcount() // k
 
 
-def _validate(job: tuple[str, int]) -> dict[str, Any]:
+def _validate(job: tuple[ExperimentConfig, str, int]) -> dict[str, Any]:
     """One run's chosen checkpoint and the rule-based ego on the same validation episodes
-    of its training traffic (``job``: the run folder, the number of episodes)."""
-    run_dir, episodes = job
-    cfg = run_config(Path(run_dir))
-    mine = validation_figures(str(model_file(run_dir, "best")), cfg, episodes)
-    rule_ego = baseline("rule", env_config(training_config(cfg)))
-    rule = validation_figures(rule_ego, cfg, episodes)
-    return {**mine, **{f"rule_{k}": v for k, v in rule.items()}}
+    of its training traffic (``job``: the run's config, its folder, the number of episodes)."""
+    cfg, run_dir, episodes = job
+    return figures_with_rule(str(model_file(run_dir, "best")), cfg, episodes)
 
 
 def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
@@ -135,7 +128,7 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
         save_run_metadata(folder, OmegaConf.create(settings))
     table = runs(runs_dir)
     table["group"] = groups(table, k)
-    jobs = [(str(row.run), episodes) for row in table.itertuples()]
+    jobs = [(row.config, str(row.run), episodes) for row in table.itertuples()]
     if workers == 1:
         figures = [_validate(job) for job in jobs]
     else:  # spawned, as evaluate's workers: a fork would copy torch's OpenMP threads
@@ -143,12 +136,8 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
         init = partial(set_threads, 1, 1)
         with ProcessPoolExecutor(workers, context, initializer=init) as pool:
             figures = list(pool.map(_validate, jobs))
-    table = pd.concat([table, pd.DataFrame(figures)], axis=1)
-    table["score"] = [
-        score(row.policy, {k: row[k] for k in ("collision_pct", "per_100km", "avg_speed")},
-              {k: row[f"rule_{k}"] for k in ("collision_pct", "per_100km", "avg_speed")})
-        for _, row in table.iterrows()
-    ]  # fmt: skip
+    table["score"] = [score(p, *split_rule(f)) for p, f in zip(table.policy, figures, strict=True)]
+    table = pd.concat([table.drop(columns="config"), pd.DataFrame(figures)], axis=1)
     best = table.sort_values("seed").groupby(["density", "policy", "group"]).score.idxmin()
     table["kept"] = table.index.isin(best)
     for row in table[table.kept].itertuples():
