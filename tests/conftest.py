@@ -12,7 +12,8 @@ if "PYTEST_XDIST_WORKER" in os.environ:
     # before numba or torch is imported; results do not depend on the number of threads.
     for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(_var, "1")
-for _var in ("BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE"):  # a user's cluster stays out
+# A user's cluster stays out, and the command a bgap run set for the processes it starts
+for _var in ("BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE", "BGAP_COMMAND"):
     os.environ.pop(_var, None)
 
 import glob  # noqa: E402

@@ -3,6 +3,8 @@ training, saving, loading and evaluation; resuming a killed training: tests/test
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 import torch as th
@@ -131,20 +133,25 @@ def test_an_attention_network_trains_and_loads_with_its_extractor(tmp_path, algo
 
 
 @pytest.mark.slow
-def test_sb3_trainings_side_by_side_learn_what_they_learn_alone(tmp_path):
+def test_sb3_trainings_side_by_side_learn_what_they_learn_alone(tmp_path, monkeypatch):
     """bgap.train seeds=[0,1] with the SB3 learner in two processes (workers=2) and one after
-    the other (workers=1): the same parameters, in the same per-training folders."""
+    the other (workers=1): the same parameters, in the same per-training folders; each
+    folder's command.txt is the command that started them, not the worker process's."""
     from bgap.agents.policies import load_model
+    from bgap.common.cli import ENV_COMMAND, own_command, run
     from bgap.experiments.train import train_side_by_side
     from bgap.experiments.training import member_configs
 
+    monkeypatch.setenv(ENV_COMMAND, "")  # restored after the test: run() sets it
     dirs = {}
     for workers in (1, 2):
         overrides = ["agent=ppo", "profile=tiny", "profile.train_steps=5000", "env=sparse",
                      "seeds=[0,1]", "backend=vector"]  # fmt: skip
         cfg = validate(compose("train", [*overrides, f"run_dir={tmp_path}/w{workers}"]))
-        dirs[workers] = train_side_by_side(member_configs(cfg), workers)
+        members = member_configs(cfg)
+        dirs[workers] = run("test", partial(train_side_by_side, members, workers), "")
     assert [d.name for d in dirs[1]] == ["sparse-behavior_rich-s0", "sparse-behavior_rich-s1"]
+    assert {(d / "command.txt").read_text() for d in dirs[2]} == {own_command() + "\n"}
     for alone, side in zip(dirs[1], dirs[2], strict=True):
         a, b = (load_model(d).policy.state_dict() for d in (alone, side))
         assert all(th.equal(a[k], b[k]) for k in a)

@@ -4,6 +4,7 @@ Ray is not installed (it is an optional extra: pip install -e ".[cluster]")."""
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
 import sys
 
@@ -250,6 +251,9 @@ def test_ctrl_c_on_the_driver_cancels_the_tasks_and_says_what_was_kept(tmp_path)
     resumed = subprocess.run([*cmd, "resume=true"], capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-2000:]
     assert (tmp_path / "run" / "model.zip").exists()
+    # the driver's command, not the command line of Ray's worker process that trained it
+    typed = shlex.join(["python", *cmd[1:], "resume=true"])
+    assert (tmp_path / "run" / "command.txt").read_text() == typed + "\n"
 
 
 def test_a_cluster_that_wants_a_token_refuses_a_driver_without_one_in_one_line(tmp_path):

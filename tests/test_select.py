@@ -7,6 +7,7 @@ from dataclasses import replace
 import pandas as pd
 import pytest
 
+from bgap.analysis.episodes import arm_algo, arm_name
 from bgap.analysis.stats import rule_objective
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
@@ -50,6 +51,14 @@ def test_runs_fall_into_consecutive_groups_per_density_and_family():
     assert (g[table.seed < 11] == 0).all() and (g[table.seed >= 11] == 1).all()
     with pytest.raises(ConfigError, match="--group 4 does not divide the 6 behavior_rich runs"):
         groups(table, 4)
+
+
+def test_a_selection_arm_is_named_by_its_algorithm_and_its_k():
+    assert arm_algo("learner-qrdqn-k3") == arm_algo("learner-qrdqn") == "QR-DQN"
+    assert "best of 3 training seeds" in arm_name("learner-qrdqn-k3")
+    assert arm_name("learner-qrdqn").startswith("QR-DQN learner") and "best" not in arm_name(
+        "learner-qrdqn"
+    )
 
 
 def test_a_tiny_selection_keeps_each_groups_best_run_for_evaluation(tmp_path):

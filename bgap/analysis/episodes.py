@@ -59,17 +59,25 @@ ARM_NAMES = {
 ALGO_NAMES = {"dqn": "DQN", "qrdqn": "QR-DQN", "ppo": "PPO"}
 
 
+SELECTED = re.compile(r"(?P<algo>.+)-k(?P<k>\d+)")
+"""A learner arm that kept the best of each group of k training seeds on validation
+(``learner-<algo>-k<k>``: params.yaml ``selections``, :mod:`bgap.experiments.select`)."""
+
+
 def arm_algo(arm: str) -> str:
     """The algorithm an arm trains (``DQN`` but for a learner arm's)."""
     algo = arm[len(LEARNER_ARM) :] if arm.startswith(LEARNER_ARM) else "dqn"
+    algo = m["algo"] if (m := SELECTED.fullmatch(algo)) else algo
     return ALGO_NAMES.get(algo, algo)
 
 
 def arm_name(arm: str) -> str:
     """An arm as the tables and figures name it."""
-    if arm.startswith(LEARNER_ARM):
-        return f"{arm_algo(arm)} learner (its search's network, observation and recipe)"
-    return ARM_NAMES.get(arm, arm)
+    if not arm.startswith(LEARNER_ARM):
+        return ARM_NAMES.get(arm, arm)
+    kept = SELECTED.fullmatch(arm[len(LEARNER_ARM) :])
+    best = f", best of {kept['k']} training seeds on validation" if kept else ""
+    return f"{arm_algo(arm)} learner (its search's network, observation and recipe{best})"
 
 
 def mixture_arms(arms) -> list[str]:

@@ -353,9 +353,20 @@ def rule_objective(
     if short > 0:
         return 1000.0 + short
     return max(
-        rich["per_100km"] - rich_rule["per_100km"],
-        stock["collision_pct"] - stock_rule["collision_pct"] - margin,
+        rule_excess("behavior_rich", rich, rich_rule),
+        rule_excess("default", stock, stock_rule, margin),
     )
+
+
+def rule_excess(
+    policy: str, mine: dict[str, float], rule: dict[str, float], margin: float = STOCK_MARGIN
+) -> float:
+    """One policy's term of :func:`rule_objective` (below 0: its rule of issue 32 is met):
+    behaviour-rich, its collisions per 100 km minus the rule-based ego's; ``default`` (in
+    stock traffic), its collision % minus the rule-based ego's minus ``margin``."""
+    if policy == "default":
+        return mine["collision_pct"] - rule["collision_pct"] - margin
+    return mine["per_100km"] - rule["per_100km"]
 
 
 def holm(pvalues: np.ndarray) -> np.ndarray:

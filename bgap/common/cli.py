@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import shlex
 import sys
 from collections.abc import Callable
 from typing import Any, NoReturn
@@ -19,6 +21,23 @@ from bgap.common.errors import ConfigError, Interrupted, TrajectoryError
 
 BAD_INPUT = 2
 INTERRUPTED = 130
+
+ENV_COMMAND = "BGAP_COMMAND"
+"""The bgap command a process works for, set by :func:`run` in the command's own process and
+inherited by the processes it starts (Ray tasks get it from their driver): what a run
+folder's ``command.txt`` records, not a worker's own command line."""
+
+
+def own_command() -> str:
+    """This process's command line as typed (``sys.orig_argv`` keeps ``-m bgap.x``, where
+    ``argv[0]`` would be the module's file path)."""
+    return " ".join(shlex.quote(a) for a in ["python", *sys.orig_argv[1:]])
+
+
+def command() -> str:
+    """The bgap command this process works for: its own, or, in a worker process or a Ray
+    task, the command that started it (:data:`ENV_COMMAND`)."""
+    return os.environ.get(ENV_COMMAND) or own_command()
 
 
 def one_line(err: BaseException) -> str:
@@ -64,6 +83,7 @@ def known_errors() -> tuple[type[BaseException], ...]:
 def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
     """Run ``task`` with the one-line error style; ``on_interrupt`` says what a Ctrl-C keeps
     (an :class:`~bgap.common.errors.Interrupted` raised by the task says it instead)."""
+    os.environ[ENV_COMMAND] = own_command()  # for the worker processes it starts
     try:
         return task()
     except Interrupted as err:

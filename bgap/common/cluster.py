@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
 
+from bgap.common.cli import ENV_COMMAND, command
 from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
 from bgap.common.runs import CHECKPOINT_STATE, unpack
 
@@ -216,11 +217,14 @@ def _reachable(address: str) -> None:
         ) from None
 
 
-def _limited(fn: Callable[..., Any], cpus: float, *args: Any) -> Any:
+def _limited(fn: Callable[..., Any], cpus: float, driver: str, *args: Any) -> Any:
     """``fn(*args)`` with torch's and numba's thread pools cut to the task's CPUs: a pool of
     one thread per core of the machine in each of several tasks oversubscribes the cores,
     and numba's parallel kernels wait for their slowest thread (2 one-CPU nodes on 2 cores
-    ran 0.42x one node's throughput so). Results do not depend on the number of threads."""
+    ran 0.42x one node's throughput so). Results do not depend on the number of threads.
+    ``driver``: the driver's command, which the run folders the task writes record (a node's
+    worker process has Ray's own command line, and another machine's environment)."""
+    os.environ[ENV_COMMAND] = driver
     # Imported here: the tasks run the simulator and the learners; this module needs neither.
     from bgap.common.threads import set_threads
 
@@ -243,7 +247,7 @@ def run_tasks(
         remote = ray.remote(_limited).options(
             num_cpus=cfg.cpus, num_gpus=cfg.gpus, max_retries=cfg.retries
         )
-        refs = [remote.remote(fn, cfg.cpus, *call) for call in calls]
+        refs = [remote.remote(fn, cfg.cpus, command(), *call) for call in calls]
         index = {ref: k for k, ref in enumerate(refs)}
         results: list[Any] = [None] * len(refs)
         pending = list(refs)

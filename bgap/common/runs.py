@@ -15,7 +15,6 @@ import io
 import json
 import os
 import pickle
-import shlex
 import sys
 import tarfile
 import zipfile
@@ -26,6 +25,7 @@ from typing import Any, TypeVar
 
 from omegaconf import OmegaConf
 
+from bgap.common.cli import command
 from bgap.common.errors import ConfigError
 
 T = TypeVar("T")
@@ -81,6 +81,13 @@ def model_file(run_dir: str | Path, checkpoint: str = "best") -> Path:
     one where the training validated (else the final one), ``last`` the final one."""
     best = Path(run_dir) / BEST_MODEL
     return best if checkpoint == "best" and best.exists() else Path(run_dir) / MODEL
+
+
+def run_folders(root: str | Path) -> list[Path]:
+    """Every run folder below ``root`` (one holding ``model.zip``; a training's
+    ``checkpoints*`` folders are not runs), sorted by path."""
+    found = Path(root).rglob(MODEL)
+    return sorted(p.parent for p in found if not p.parent.name.startswith("checkpoints"))
 
 
 ADDED_LATER = {
@@ -190,9 +197,7 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
             )
     out.mkdir(parents=True, exist_ok=True)
     # The command first: a config.yaml with no command.txt beside it is not bgap's.
-    # orig_argv keeps "-m bgap.x"; argv[0] would be the module's file path.
-    command = " ".join(shlex.quote(a) for a in ["python", *sys.orig_argv[1:]])
-    write_atomic(out / COMMAND, command + "\n")
+    write_atomic(out / COMMAND, command() + "\n")
     write_atomic(stored_path, OmegaConf.to_yaml(conf, resolve=True))
     return out
 

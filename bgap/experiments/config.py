@@ -359,9 +359,10 @@ class RecipeConfig(SweepConfig):
         check(len(self.check_seeds) >= 2, "check_seeds", self.check_seeds, ">= 2 seeds")
         check(self.check_episodes >= 10, "check_episodes", self.check_episodes, ">= 10")
         for lever in self.levers:
-            keys = [part.split("=", 1)[0] for part in lever.split()]
+            parts = lever.split()
+            keys = [part.split("=", 1)[0] for part in parts]
             check(
-                bool(keys) and all("=" in part and part[0] != "=" for part in lever.split()),
+                bool(keys) and all("=" in part and part[0] != "=" for part in parts),
                 "levers",
                 lever,
                 "each lever is KEY=VALUE, several separated by spaces, e.g. agent.extractor="

@@ -42,6 +42,7 @@ from bgap.common.runs import (
     MODEL,
     exclusive,
     model_file,
+    run_folders,
     save_run_metadata,
     write_atomic,
 )
@@ -441,9 +442,7 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     specs: dict[str, str] = {}
     for m in map(Path, cfg.models):
         if m.is_dir() and not (m / MODEL).exists():
-            found = sorted(
-                p.parent for p in m.rglob(MODEL) if not p.parent.name.startswith("checkpoints")
-            )
+            found = run_folders(m)
             if not found:
                 raise FileNotFoundError(f"no {MODEL} in {m} or its subfolders")
             # named by m's name and their path below it: <arm>/<density>/<density>-<family>-

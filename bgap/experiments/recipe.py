@@ -139,19 +139,19 @@ def check_all(
     and a row found there is not trained again: the check resumes from the study's trial log
     (``bgap.pipeline trials``) on a machine that has none of its run folders."""
     calls = [(v, seed) for v in variants for seed in cfg.check_seeds]
+    keys = [check_key(cfg, v, seed) for v, seed in calls]
     found = {} if study is None else study.user_attrs
     rows: dict[int, dict[str, Any]] = {}
     for i, (v, seed) in enumerate(calls):
-        if (kept := found.get(check_key(cfg, v, seed))) is not None:
+        if (kept := found.get(keys[i])) is not None:
             row = dict(kept["row"])  # (key, value) pairs: the row's column order
-            rows[i] = row | {"trial": v.label, "run_dir": str(root / f"{v.folder}-s{seed}")}
+            rows[i] = row | {"trial": v.label, "run_dir": str(check_run_dir(root, v, seed))}
     todo = [i for i in range(len(calls)) if i not in rows]
 
     def finished(i: int, row: dict[str, Any]) -> None:
         rows[i] = row
         if study is not None:
-            v, seed = calls[i]
-            study.set_user_attr(check_key(cfg, v, seed), kept_row(row))
+            study.set_user_attr(keys[i], kept_row(row))
 
     if cfg.workers <= 1 or len(todo) <= 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
         for i in todo:
@@ -172,6 +172,11 @@ def check_all(
                 "runs again"
             ) from None
     return [rows[i] for i in range(len(calls))]
+
+
+def check_run_dir(root: Path, v: Variant, seed: int) -> Path:
+    """The run folder of ``v``'s check training with ``seed``."""
+    return root / f"{v.folder}-s{seed}"
 
 
 def check_key(cfg: RecipeConfig, v: Variant, seed: int) -> str:
@@ -228,7 +233,7 @@ def check_seed(
     """Train ``v``'s settings with training seed ``seed`` (reused once finished); its row:
     the policy's, the idle ego's and the rule-based ego's validation figures."""
     tcfg = validate(compose("train", train_overrides(cfg, v, seed)))
-    run_dir = root / f"{v.folder}-s{seed}"
+    run_dir = check_run_dir(root, v, seed)
     tcfg = replace(tcfg, run_dir=str(run_dir), root=cfg.root)
     train(replace(tcfg, resume=True), progress=progress)  # reused once finished
     row: dict[str, Any] = {"trial": v.label, "seed": seed, "run_dir": str(run_dir)}

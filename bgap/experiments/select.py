@@ -26,7 +26,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, speed_shortfall
+from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, rule_excess, speed_shortfall
 from bgap.common.cli import OneLineParser, positive, run
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
@@ -36,6 +36,7 @@ from bgap.common.runs import (
     model_file,
     only_metadata,
     refuse_foreign,
+    run_folders,
     save_run_metadata,
     write_atomic,
 )
@@ -62,11 +63,7 @@ def score(
     behaviour-rich, collisions per 100 km minus the rule-based ego's, and default (in stock
     traffic), collision % minus the rule-based ego's minus ``margin``."""
     short = speed_shortfall(mine["avg_speed"], rule["avg_speed"], floor)
-    if short > 0:
-        return 1000.0 + short
-    if policy == "default":
-        return mine["collision_pct"] - rule["collision_pct"] - margin
-    return mine["per_100km"] - rule["per_100km"]
+    return 1000.0 + short if short > 0 else rule_excess(policy, mine, rule, margin)
 
 
 def run_config(folder: Path) -> ExperimentConfig:
@@ -80,9 +77,8 @@ def runs(root: Path) -> pd.DataFrame:
     """Every run folder under ``root`` (one with ``model.zip`` and ``config.yaml``): its path,
     density, policy family, training seed and config (:func:`run_config`)."""
     rows = []
-    for model in sorted(root.rglob(MODEL)):
-        folder = model.parent
-        if folder.name.startswith("checkpoints") or not (folder / CONFIG).exists():
+    for folder in run_folders(root):
+        if not (folder / CONFIG).exists():
             continue
         cfg = run_config(folder)
         rows.append({"run": folder, "density": cfg.env.name, "policy": cfg.policy,
