@@ -14,7 +14,6 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 RERUNNING = {
-    "recipe_learner@ppo",
 }
 """Stages whose committed lock predates code that changes what they compute, being rerun,
 or not run yet: issue 32's recipe per learner and its learner arms. Each must still be
