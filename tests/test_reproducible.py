@@ -13,8 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-RERUNNING = {
-}
+RERUNNING: set[str] = set()
 """Stages whose committed lock predates code that changes what they compute, being rerun,
 or not run yet: issue 32's recipe per learner and its learner arms. Each must still be
 stale (a rerun stage leaves this set in the same commit); no other stage may be."""
