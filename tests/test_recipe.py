@@ -174,6 +174,7 @@ def test_without_levers_the_levers_files_hold_the_recipes_row_alone(tmp_path):
     paths = check_levers(_cfg("mode=rule"), trial, summary, tmp_path, tmp_path, False)
     text = paths["levers"].read_text()
     assert "No lever was asked for" in text and text.count("\n| ") == 2  # header + recipe
+    assert "(trial 4)" in text  # the trial's number, not the float a row of numbers makes
     assert (tmp_path / "levers.csv").exists() and not any(tmp_path.glob("trial-*"))
 
 

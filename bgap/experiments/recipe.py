@@ -392,8 +392,9 @@ def check_levers(
 def markdown_levers(
     cfg: RecipeConfig, chosen: pd.Series, levers: pd.DataFrame, kept: list[str]
 ) -> str:
+    trial = int(chosen.trial)  # a row of numbers only: pandas reads the number as a float
     lines = [
-        f"# Levers of the chosen recipe (trial {chosen.trial}), one switched at a time",
+        f"# Levers of the chosen recipe (trial {trial}), one switched at a time",
         "",
         f"Each row trains the chosen recipe with one setting changed, on the check's "
         f"{len(cfg.check_seeds)} training seeds x {cfg.check_episodes} validation episodes per "
@@ -405,7 +406,7 @@ def markdown_levers(
         "[95% CI] | speed m/s | objective | change |",
         "|---|---|---|---|---|---|---|",
     ]
-    for label, r in [(f"the recipe (trial {chosen.trial})", chosen)] + [
+    for label, r in [(f"the recipe (trial {trial})", chosen)] + [
         (f"`{r.trial}`", r) for _, r in levers.iterrows()
     ]:
         lines.append(
