@@ -8,12 +8,13 @@ import pandas as pd
 import pytest
 
 from bgap.analysis.episodes import arm_algo, arm_name, learner_arm
+from bgap.analysis.stats import policy_score as score
 from bgap.analysis.stats import rule_objective
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
 from bgap.experiments.config import compose
 from bgap.experiments.evaluate import policy_specs
-from bgap.experiments.select import groups, score, select
+from bgap.experiments.select import groups, select
 from bgap.experiments.sweep import validation_figures
 from bgap.experiments.train import train
 
