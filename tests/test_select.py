@@ -7,13 +7,14 @@ from dataclasses import replace
 import pandas as pd
 import pytest
 
-from bgap.analysis.episodes import arm_algo, arm_name
+from bgap.analysis.episodes import arm_algo, arm_name, learner_arm
+from bgap.analysis.stats import policy_score as score
 from bgap.analysis.stats import rule_objective
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
 from bgap.experiments.config import compose
 from bgap.experiments.evaluate import policy_specs
-from bgap.experiments.select import groups, score, select
+from bgap.experiments.select import groups, select
 from bgap.experiments.sweep import validation_figures
 from bgap.experiments.train import train
 
@@ -59,6 +60,9 @@ def test_a_selection_arm_is_named_by_its_algorithm_and_its_k():
     assert arm_name("learner-qrdqn").startswith("QR-DQN learner") and "best" not in arm_name(
         "learner-qrdqn"
     )
+    assert learner_arm("learner-dqn-k12") == ("dqn", 12)
+    assert learner_arm("learner-ppo") == ("ppo", None)
+    assert learner_arm("main") is None and arm_algo("main") == "DQN"
 
 
 def test_a_tiny_selection_keeps_each_groups_best_run_for_evaluation(tmp_path):

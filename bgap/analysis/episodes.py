@@ -64,20 +64,33 @@ SELECTED = re.compile(r"(?P<algo>.+)-k(?P<k>\d+)")
 (``learner-<algo>-k<k>``: params.yaml ``selections``, :mod:`bgap.experiments.select`)."""
 
 
+def learner_arm(arm: str) -> tuple[str, int | None] | None:
+    """A learner arm's algorithm key and, for a selection arm (``learner-<algo>-k<k>``), its
+    k; None for an arm that is no learner arm."""
+    if not arm.startswith(LEARNER_ARM):
+        return None
+    rest = arm[len(LEARNER_ARM) :]
+    kept = SELECTED.fullmatch(rest)
+    return (kept["algo"], int(kept["k"])) if kept else (rest, None)
+
+
 def arm_algo(arm: str) -> str:
     """The algorithm an arm trains (``DQN`` but for a learner arm's)."""
-    algo = arm[len(LEARNER_ARM) :] if arm.startswith(LEARNER_ARM) else "dqn"
-    algo = m["algo"] if (m := SELECTED.fullmatch(algo)) else algo
+    learner = learner_arm(arm)
+    algo = learner[0] if learner else "dqn"
     return ALGO_NAMES.get(algo, algo)
 
 
 def arm_name(arm: str) -> str:
     """An arm as the tables and figures name it."""
-    if not arm.startswith(LEARNER_ARM):
+    learner = learner_arm(arm)
+    if learner is None:
         return ARM_NAMES.get(arm, arm)
-    kept = SELECTED.fullmatch(arm[len(LEARNER_ARM) :])
-    best = f", best of {kept['k']} training seeds on validation" if kept else ""
-    return f"{arm_algo(arm)} learner (its search's network, observation and recipe{best})"
+    algo, k = learner
+    best = f", best of {k} training seeds on validation" if k else ""
+    return (
+        f"{ALGO_NAMES.get(algo, algo)} learner (its search's network, observation and recipe{best})"
+    )
 
 
 def mixture_arms(arms) -> list[str]:

@@ -303,6 +303,10 @@ STOCK_MARGIN = 1.0
 """Percentage points of episodes a default policy may crash in beyond the rule-based ego's,
 in stock traffic, and still meet issue 32's stock rule."""
 
+SHORT_PENALTY = 1000.0
+"""What issue 32's objectives add to a speed shortfall: above any collision excess, so a
+policy that keeps the pace ranks above any that does not."""
+
 
 def speed_shortfall(speed: float, rule_speed: float, floor: float = RULE_FLOOR) -> float:
     """How far ``speed`` falls below ``floor`` x the rule-based ego's speed, in % of that
@@ -351,11 +355,25 @@ def rule_objective(
         for policy, rule in ((rich, rich_rule), (stock, stock_rule))
     )
     if short > 0:
-        return 1000.0 + short
+        return SHORT_PENALTY + short
     return max(
         rule_excess("behavior_rich", rich, rich_rule),
         rule_excess("default", stock, stock_rule, margin),
     )
+
+
+def policy_score(
+    policy: str,
+    mine: dict[str, float],
+    rule: dict[str, float],
+    floor: float = RULE_FLOOR,
+    margin: float = STOCK_MARGIN,
+) -> float:
+    """One policy's half of :func:`rule_objective` (lower is better): below ``floor`` x the
+    rule-based ego's speed, 1000 + the shortfall in % of that floor; else its
+    :func:`rule_excess`."""
+    short = speed_shortfall(mine["avg_speed"], rule["avg_speed"], floor)
+    return SHORT_PENALTY + short if short > 0 else rule_excess(policy, mine, rule, margin)
 
 
 def rule_excess(

@@ -247,7 +247,8 @@ def run_tasks(
         remote = ray.remote(_limited).options(
             num_cpus=cfg.cpus, num_gpus=cfg.gpus, max_retries=cfg.retries
         )
-        refs = [remote.remote(fn, cfg.cpus, command(), *call) for call in calls]
+        driver = command()
+        refs = [remote.remote(fn, cfg.cpus, driver, *call) for call in calls]
         index = {ref: k for k, ref in enumerate(refs)}
         results: list[Any] = [None] * len(refs)
         pending = list(refs)

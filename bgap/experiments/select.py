@@ -5,7 +5,8 @@ policy family, the run folders under ``RUNS`` (in the order of their training se
 into consecutive groups of ``K``; each run's validation-chosen checkpoint plays
 ``--episodes`` validation episodes of its own training traffic (seeds ``val_seed + k``, apart
 from the test's) beside the rule-based ego, and is scored by its half of issue 32's recipe
-objective (:func:`score`). The lowest score of each group is kept (the lower seed on a tie).
+objective (:func:`bgap.analysis.stats.policy_score`). The lowest score of each group is kept
+(the lower seed on a tie).
 
 Writes a copy of each kept run folder to ``--out`` (``<density>/<run>``, without its resume
 checkpoints: what ``bgap.evaluate models=[OUT]`` plays) and the table of every run's
@@ -26,7 +27,7 @@ from typing import Any
 import pandas as pd
 from omegaconf import OmegaConf
 
-from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, rule_excess, speed_shortfall
+from bgap.analysis.stats import RULE_FLOOR, SHORT_PENALTY, STOCK_MARGIN, policy_score
 from bgap.common.cli import OneLineParser, positive, run
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
@@ -44,26 +45,11 @@ from bgap.common.threads import set_threads
 from bgap.experiments.config import ExperimentConfig, compose
 from bgap.experiments.sweep import figures_with_rule, split_rule
 
-__all__ = ["groups", "main", "markdown", "run_config", "runs", "score", "select"]
+__all__ = ["groups", "main", "markdown", "run_config", "runs", "select"]
 
 SKIPPED = ("checkpoints", "tb")
 """What a kept run's copy leaves out: resume state and TensorBoard logs (evaluation reads
 neither)."""
-
-
-def score(
-    policy: str,
-    mine: dict[str, float],
-    rule: dict[str, float],
-    floor: float = RULE_FLOOR,
-    margin: float = STOCK_MARGIN,
-) -> float:
-    """A run's half of :func:`bgap.analysis.stats.rule_objective` (lower is better): below
-    ``floor`` x the rule-based ego's speed, 1000 + the shortfall in % of that floor; else,
-    behaviour-rich, collisions per 100 km minus the rule-based ego's, and default (in stock
-    traffic), collision % minus the rule-based ego's minus ``margin``."""
-    short = speed_shortfall(mine["avg_speed"], rule["avg_speed"], floor)
-    return 1000.0 + short if short > 0 else rule_excess(policy, mine, rule, margin)
 
 
 def run_config(folder: Path) -> ExperimentConfig:
@@ -132,7 +118,9 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
         init = partial(set_threads, 1, 1)
         with ProcessPoolExecutor(workers, context, initializer=init) as pool:
             figures = list(pool.map(_validate, jobs))
-    table["score"] = [score(p, *split_rule(f)) for p, f in zip(table.policy, figures, strict=True)]
+    table["score"] = [
+        policy_score(p, *split_rule(f)) for p, f in zip(table.policy, figures, strict=True)
+    ]
     table = pd.concat([table.drop(columns="config"), pd.DataFrame(figures)], axis=1)
     best = table.sort_values("seed").groupby(["density", "policy", "group"]).score.idxmin()
     table["kept"] = table.index.isin(best)
@@ -155,8 +143,8 @@ def markdown(table: pd.DataFrame, k: int, episodes: int) -> str:
         "training traffic, beside the rule-based ego on the same episodes; score: its half of "
         "issue 32's recipe objective (behaviour-rich: collisions per 100 km minus the "
         "rule-based ego's; default: collision % minus the rule-based ego's minus "
-        f"{STOCK_MARGIN:g}; 1000 + the shortfall below {RULE_FLOOR:g} x its speed). Kept: the "
-        "lowest score of each group.",
+        f"{STOCK_MARGIN:g}; {SHORT_PENALTY:g} + the shortfall below {RULE_FLOOR:g} x its "
+        "speed). Kept: the lowest score of each group.",
         "",
         "| density | policy | group | seed | per 100 km | collision % | speed m/s | rule per "
         "100 km / % / m/s | score | kept |",

@@ -34,7 +34,7 @@ from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import baseline, load_model, rollout
-from bgap.analysis.stats import constrained_score, per_100km, rule_objective, speed_shortfall
+from bgap.analysis.stats import constrained_score, per_100km, policy_score, rule_objective
 from bgap.common import studies
 from bgap.common.cluster import ENV_ADDRESS, ClusterConfig, run_tasks
 from bgap.common.config import app, load, validate
@@ -233,9 +233,7 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
     def score(model, c, episodes):
         if cfg.mode == "rule":  # the behaviour-rich half of the objective, while it trains
             mine, rule = split_rule(figures_with_rule(model, c, episodes))
-            if short := speed_shortfall(mine["avg_speed"], rule["avg_speed"], cfg.rule_floor):
-                return 1000.0 + short
-            return mine["per_100km"] - rule["per_100km"]
+            return policy_score("behavior_rich", mine, rule, cfg.rule_floor)
         idle = _validation(baseline("idle"), c, episodes)[1]
         return objective(cfg, *evaluate_model(model, c, episodes), idle)
 
