@@ -67,6 +67,26 @@ def test_resumed_sweep_continues_its_trial_count(tmp_path):
     assert load_preset(RewardConfig, tmp_path / "tuned.yaml").converged
 
 
+def test_a_new_machine_continues_the_sweep_from_its_trial_log(tmp_path, capsys):
+    """``trial_log=``: a fresh root (its database lost) takes the logged trials and plays
+    only the ones still missing; a root that holds the study ignores the log."""
+    from bgap.experiments import trial_log
+
+    lost = tmp_path / "lost"
+    first = sweep(_cfg(lost, "trials=2", "mode=single", "study=s"), progress=False)
+    trial_log.save(f"sqlite:///{lost}/sweeps/optuna.db", "s", tmp_path / "s.json")
+    new = tmp_path / "new"
+    cfg = _cfg(new, "trials=3", "mode=single", "study=s", f"trial_log={tmp_path}/s.json")
+    again = sweep(cfg, progress=False)
+    assert "restored 2 trials of s" in capsys.readouterr().out
+    assert [t.params for t in again.trials[:2]] == [t.params for t in first.trials]
+    assert [t.number for t in again.trials] == [0, 1, 2]  # one trial played, not three
+    assert sorted(p.name for p in (new / "sweeps" / "s").iterdir()) == ["trial-0002"]
+    # the database is there now: the log (two trials) is not restored over its three
+    assert len(sweep(cfg, progress=False).trials) == 3
+    assert "restored" not in capsys.readouterr().out
+
+
 def test_sweep_of_the_default_policy_trains_and_scores_it_in_stock_traffic(tmp_path):
     """``policy=default`` reaches every trial's training: stock traffic, and the trial's idle
     figures are idle's on the stock validation episodes (idle crashes far more there than

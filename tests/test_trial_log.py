@@ -97,6 +97,22 @@ def test_a_study_that_holds_trials_is_not_restored_into(tmp_path):
     assert len(optuna.load_study(study_name="learner-dqn", storage=storage).trials) == 2
 
 
+def test_a_log_fills_only_a_database_that_lacks_its_study(tmp_path):
+    """``restore_if_missing``, what ``trial_log=`` of a search calls before it opens its
+    study: a new database gets the log; one holding the study, an absent log (a first run)
+    and another study's log change nothing, the last with one line."""
+    storage = _searched(tmp_path, trials=3)
+    trial_log.save(storage, "learner-dqn", tmp_path / "log.json")
+    fresh = f"sqlite:///{tmp_path / 'new' / 'optuna.db'}"  # its folder not made yet
+    assert trial_log.restore_if_missing(fresh, "learner-dqn", tmp_path / "log.json") == 3
+    assert trial_log.restore_if_missing(fresh, "learner-dqn", tmp_path / "log.json") == 0
+    assert trial_log.restore_if_missing(fresh, "other", tmp_path / "none.json") == 0
+    with pytest.raises(ConfigError, match="holds study 'learner-dqn', not 'other'"):
+        trial_log.restore_if_missing(fresh, "other", tmp_path / "log.json")
+    assert optuna.get_all_study_names(fresh) == ["learner-dqn"]
+    assert len(optuna.load_study(study_name="learner-dqn", storage=fresh).trials) == 3
+
+
 @pytest.mark.parametrize(
     "args, says",
     [

@@ -273,6 +273,9 @@ class SweepConfig(ExperimentConfig):
     """Optuna URL (sqlite:///..., postgresql://..., journal:PATH); default SQLite under root."""
     study: Optional[str] = None
     """Study name; default ``<sweep>-<mode>-<env>``."""
+    trial_log: Optional[str] = None
+    """A trial log (``bgap.pipeline trials save``) to continue from when ``storage`` does not
+    hold the study yet: a new machine resumes a search from what git kept."""
     write_preset: bool = True
     preset: Optional[str] = None
     """Where the chosen preset goes; default ``<root>/presets/<group>/user_tuned.yaml``

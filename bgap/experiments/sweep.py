@@ -43,6 +43,7 @@ from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, as_before, digest, write_atomic
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
+from bgap.experiments import trial_log
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
 from bgap.experiments.training import training_config
@@ -97,7 +98,7 @@ def suggest(trial: optuna.Trial, space: dict[str, dict[str, Any]]) -> dict[str, 
 
 
 STUDY_VOLATILE = (
-    *VOLATILE, "trials", "storage", "study", "write_preset", "preset", "seeds",
+    *VOLATILE, "trials", "storage", "study", "trial_log", "write_preset", "preset", "seeds",
     # bgap.recipe's settings of what follows the sweep
     "candidates", "check_seeds", "check_episodes", "preset_dir", "preset_name", "levers",
 )  # fmt: skip
@@ -272,6 +273,10 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     space = load_space(cfg.sweep)
     root = Path(cfg.root) / "sweeps"
     root.mkdir(parents=True, exist_ok=True)
+    if cfg.trial_log:  # a new machine: the trials git kept, before the study is opened
+        url = cfg.storage or sqlite_url(root)
+        if n := trial_log.restore_if_missing(url, study_name(cfg), cfg.trial_log):
+            print(f"restored {n} trials of {study_name(cfg)} from {cfg.trial_log} into {url}")
     storage = open_storage(cfg.storage or sqlite_url(root))
     multi = cfg.mode == "multi"
     study = resumable_study(

@@ -95,6 +95,30 @@ def save(storage: str, study: str, path: str | Path) -> int:
     return len(trials)
 
 
+def restore_if_missing(storage: str, study: str, path: str | Path) -> int:
+    """Restore the log at ``path`` when ``storage`` holds no study ``study`` yet (a new
+    machine, the database lost); returns how many trials came back: 0 when the study is
+    there (the database is newer than any log) or the log is not written yet (a first run).
+    A log of another study is refused."""
+    path = Path(path)
+    db = _sqlite_file(storage)
+    there = db is None or db.is_file()  # a server's URL, or a database file already made
+    if not path.is_file() or (
+        there and study in optuna.get_all_study_names(open_storage(storage, "storage"))
+    ):
+        return 0
+    try:
+        logged = json.loads(path.read_text())["study"]
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ConfigError(f"{path} is not a trial log bgap.pipeline wrote ({err})") from None
+    if logged != study:
+        raise ConfigError(
+            f"trial_log={path} holds study {logged!r}, not {study!r}; give this "
+            "search's log (searches/<study>.json) or leave trial_log out"
+        )
+    return restore(storage, path)
+
+
 def restore(storage: str, path: str | Path) -> int:
     """Add the trials logged in ``path`` to their study in ``storage`` (created with the
     logged directions), in their logged order; returns how many. A study that already
