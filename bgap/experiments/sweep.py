@@ -273,22 +273,20 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     space = load_space(cfg.sweep)
     root = Path(cfg.root) / "sweeps"
     root.mkdir(parents=True, exist_ok=True)
-    if cfg.trial_log:  # a new machine: the trials git kept, before the study is opened
-        url = cfg.storage or sqlite_url(root)
-        if n := trial_log.restore_if_missing(url, study_name(cfg), cfg.trial_log):
-            print(f"restored {n} trials of {study_name(cfg)} from {cfg.trial_log} into {url}")
-    storage = open_storage(cfg.storage or sqlite_url(root))
+    url, name = cfg.storage or sqlite_url(root), study_name(cfg)
+    # a new machine: the trials git kept, restored before the study is opened
+    if cfg.trial_log and (n := trial_log.restore_if_missing(url, name, cfg.trial_log)):
+        print(f"restored {n} trials of {name} from {cfg.trial_log} into {url}")
     multi = cfg.mode == "multi"
     study = resumable_study(
-        storage,
-        study_name(cfg),
+        open_storage(url),
+        name,
         ["minimize", "maximize"] if multi else ["minimize"],
         optuna.samplers.TPESampler(seed=None),  # workers must not repeat draws
         None if multi else optuna.pruners.MedianPruner(n_startup_trials=5),
     )
     finished = (TrialState.COMPLETE, TrialState.PRUNED)
     if cfg.cluster.enabled:  # cfg.workers Optuna workers as Ray tasks, one shared study
-        url = cfg.storage or sqlite_url(root)
         calls = [(cfg, url, studies.HEARTBEAT)] * cfg.workers
         kept = f"every finished trial is kept in the study ({url}); rerun to continue"
         run_tasks(cfg.cluster, _sweep_worker, calls, kept=kept)

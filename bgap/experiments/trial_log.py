@@ -107,27 +107,36 @@ def restore_if_missing(storage: str, study: str, path: str | Path) -> int:
         there and study in optuna.get_all_study_names(open_storage(storage, "storage"))
     ):
         return 0
-    try:
-        logged = json.loads(path.read_text())["study"]
-    except (OSError, ValueError, KeyError, TypeError) as err:
-        raise ConfigError(f"{path} is not a trial log bgap.pipeline wrote ({err})") from None
-    if logged != study:
+    log = _read(path)
+    if log["study"] != study:
         raise ConfigError(
-            f"trial_log={path} holds study {logged!r}, not {study!r}; give this "
+            f"trial_log={path} holds study {log['study']!r}, not {study!r}; give this "
             "search's log (searches/<study>.json) or leave trial_log out"
         )
-    return restore(storage, path)
+    return _restore(storage, log)
+
+
+def _read(path: str | Path) -> dict[str, Any]:
+    """The trial log at ``path``, or one line saying it is none."""
+    try:
+        log = json.loads(Path(path).read_text())
+        if missing := {"study", "trials"} - set(log):
+            raise KeyError(", ".join(sorted(missing)))
+    except (OSError, ValueError, KeyError, TypeError) as err:
+        raise ConfigError(f"{path} is not a trial log bgap.pipeline wrote ({err})") from None
+    return log
 
 
 def restore(storage: str, path: str | Path) -> int:
     """Add the trials logged in ``path`` to their study in ``storage`` (created with the
     logged directions), in their logged order; returns how many. A study that already
     holds trials is refused: the log is for a database the machine lost."""
-    try:
-        log = json.loads(Path(path).read_text())
-        name, trials = log["study"], log["trials"]
-    except (OSError, ValueError, KeyError, TypeError) as err:
-        raise ConfigError(f"{path} is not a trial log bgap.pipeline wrote ({err})") from None
+    return _restore(storage, _read(path))
+
+
+def _restore(storage: str, log: dict[str, Any]) -> int:
+    """:func:`restore` of a log already read."""
+    name, trials = log["study"], log["trials"]
     db = _sqlite_file(storage)
     if db is not None:  # a new machine: the search's root is not made yet
         db.parent.mkdir(parents=True, exist_ok=True)
