@@ -284,14 +284,68 @@ def test_issue_32s_two_rules_are_read_per_arm_with_its_headline_verdict():
                              "arm": ["learner-ppo", "main", "learner-ppo"], "n": [40, 40, 40],
                              "verdict": ["holds", "contradicted", "not significant"]})  # fmt: skip
     rows = {line.split(" | ")[0].strip("| "): line.split(" | ")
-            for line in yardstick_markdown(stats, headline).splitlines()}  # fmt: skip
+            for line in yardstick_markdown(stats, headline, df).splitlines()}  # fmt: skip
     ppo = rows["PPO learner (its search's network, observation and recipe)"]
-    assert ppo[1] == "0.4 per 100 km at 28.00" and ppo[3] == "**yes**"
-    assert ppo[4] == "1.0% at 21.00" and ppo[5] == "0.0% at 22.00" and ppo[6] == "**yes**"
+    # seeds' rates 1/112 and 0 per km x 100: mean 0.45, t(1) half-width 12.71 x 0.45 = 5.67
+    assert ppo[1].startswith("0.4 [0.0, 6.1] at 28.00 [") and ppo[3] == "**yes**"
+    assert ppo[4].startswith("1.0 [") and ppo[4].split(" at ")[1].startswith("21.00 [")
+    assert ppo[5].startswith("0.0 [0.0, ") and ppo[6] == "**yes**"
     assert ppo[-1].strip(" |") == "holds"  # only the headline claim's verdict
     main = rows["recipe (main arm)"]
     assert main[3].startswith("no") and main[6] == "no"
     assert main[-1].strip(" |") == "contradicted"
+
+
+def test_pooled_points_have_intervals_across_training_seeds(tmp_path):
+    """Two dense cells, 100 episodes of 40 s each, crashes placed exactly. A learner's seed 0:
+    2 crashes at 28 m/s (112 km: 1.786 per 100 km) and 0 at 26; seed 1: 1 at 28 (0.893) and 3
+    at 26 (104 km: 2.885). Each seed pools its cells (0.893, 1.889), the point is their mean
+    (1.391, as the per-cell table's pooled column) and the interval Student t across the two
+    seeds widened to the Poisson interval of 6 crashes in 432 km. The rule-based ego (one
+    run) gets an interval from its episodes, around its point; the figure shows both rules."""
+    from scipy import stats as sps
+
+    from bgap.analysis.plots import yardstick
+    from bgap.analysis.tables import pooled_intervals, rule_markdown
+
+    def episodes(policy, mix, crashes, speed, traffic="paper"):
+        crashed = np.zeros(100, bool)
+        crashed[:crashes] = True
+        return pd.DataFrame({
+            "policy": policy, "mix": mix, "density": "dense", "radius": 180.0,
+            "seed": np.arange(100), "crashed": crashed, "avg_speed": speed, "lane_changes": 0,
+            "steps": 40, "distance": speed * 40.0, "traffic": traffic,
+        })  # fmt: skip
+
+    b = "learner-dqn/dense/dense-behavior_rich-s{}"
+    df = parse_policies(pd.concat([
+        episodes(b.format(0), 0.2, 2, 28.0), episodes(b.format(0), 0.5, 0, 26.0),
+        episodes(b.format(1), 0.2, 1, 28.0), episodes(b.format(1), 0.5, 3, 26.0),
+        episodes("rule", 0.2, 4, 28.5), episodes("rule", 0.5, 2, 27.0),
+        *(episodes(f"learner-dqn/dense/dense-default-s{s}", 0.0, s, 21.0, "stock")
+          for s in (0, 1)),
+        episodes("rule", 0.0, 0, 22.0, "stock"),
+    ], ignore_index=True))  # fmt: skip
+    got = pooled_intervals(df, "dense")
+    p = got.loc[("learner-dqn", "behavior_rich")]
+    seeds = np.array([(2 / 112 + 0) / 2, (1 / 112 + 3 / 104) / 2]) * 100
+    assert p.per_100km == pytest.approx(seeds.mean()) and p.n_seeds == 2
+    t_lo, t_hi = sps.t.interval(0.95, 1, loc=seeds.mean(), scale=sps.sem(seeds))
+    poisson_lo = sps.chi2.ppf(0.025, 12) / 2 / 4.32
+    assert p.per_100km_lo == pytest.approx(max(min(t_lo, poisson_lo), 0))
+    assert p.per_100km_hi == pytest.approx(t_hi)  # wider than Poisson's 2.97 here
+    assert p.avg_speed == pytest.approx(27.0)
+    rule = got.loc[("", "rule")]
+    assert rule.per_100km == pytest.approx((4 / 114 + 2 / 108) / 2 * 100)
+    assert rule.per_100km_lo < rule.per_100km < rule.per_100km_hi
+    # its speeds do not vary within a cell: an interval of the stored precision, not zero
+    assert rule.avg_speed == 27.75 and rule.avg_speed_lo < 27.75 < rule.avg_speed_hi
+    stats, _ = cell_stats(df)
+    table = rule_markdown(stats)
+    assert f"| {p.per_100km:.1f} at {p.avg_speed:.2f}," in table  # the pooled column
+    assert yardstick(stats, df, tmp_path / "y.png") and (tmp_path / "y.png").stat().st_size
+    no_rule = df[df.family != "rule"]
+    assert not yardstick(cell_stats(no_rule)[0], no_rule, tmp_path / "n.png")
 
 
 def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):

@@ -68,8 +68,10 @@ def readme(df, stats, table, own, sources, models, paths) -> str:
         f"of at least {RULE_FLOOR:g} x its). An arm that meets both is a learner that drives "
         "as well as the hand-built driver; its verdict on the paper's headline claim "
         "(behaviour-rich collides less than default, from the claims below) is the one to "
-        "read.\n",
-        yardstick_markdown(stats, table) if len(table) else "(no claims: one family only)\n",
+        "read. Point estimates decide; 95% intervals in brackets, across training seeds "
+        "(each seed's pooled value: its crashes over its kilometres in each cell, averaged "
+        "over the cells); `figures/yardstick.png` draws this table.\n",
+        yardstick_markdown(stats, table, df) if len(table) else "(no claims: one family only)\n",
         "## In observed traffic (replayed tables)\n",
         "The paper's premise is that behaviour-rich training prepares a policy for real "
         "traffic. Here every policy drives among recorded vehicles (issue 37): tables of SUMO "

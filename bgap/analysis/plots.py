@@ -11,7 +11,9 @@ import pandas as pd
 
 from bgap.analysis.claims import claims, own_traffic
 from bgap.analysis.episodes import (
+    LEARNER_ARM,
     METRICS,
+    MIXTURE_ARMS,
     _distinct,
     arm_name,
     cell_stats,
@@ -21,8 +23,8 @@ from bgap.analysis.episodes import (
 )
 from bgap.analysis.page import readme
 from bgap.analysis.paper import PAPER_CRASHES
-from bgap.analysis.stats import RULE_FLOOR
-from bgap.analysis.tables import table2
+from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, keeps_up, versus_rule
+from bgap.analysis.tables import pooled_intervals, table2
 from bgap.common.plotting import pyplot
 from bgap.common.runs import write_atomic
 
@@ -221,6 +223,82 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     return True
 
 
+def yardstick(stats: pd.DataFrame, df: pd.DataFrame, path: Path) -> bool:
+    """Issue 32's two rules at a glance, per arm that trains both families: left, the
+    behaviour-rich policy's collisions per 100 km against its speed pooled over the dense
+    cells (:func:`bgap.analysis.tables.pooled_intervals`, 95% intervals across training
+    seeds); right, the default policy's collision % against its speed in dense stock traffic
+    (:func:`bgap.analysis.episodes.cell_stats`' intervals). The rule-based ego is the star;
+    the shaded corner is where a policy meets the rule. Symmetric-log x axes keep the
+    authors' configuration on the page without crowding the learners."""
+    dense = pooled_intervals(df, "dense")
+    stock = stats[(stats.traffic == "stock") & (stats.density == "dense")] if len(stats) else stats
+    if len(stock):
+        stock = stock[stock.radius == stock.radius.max()].set_index(["arm", "family"])
+    if ("", "rule") not in dense.index:
+        return False
+    arms = [a for a in MIXTURE_ARMS if (a, "behavior_rich") in dense.index]
+    arms += sorted(a for a, f in dense.index if a.startswith(LEARNER_ARM) and f == "behavior_rich")
+    if not arms:
+        return False
+    plt = pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(10, 5.4))
+    panels = [(axes[0], dense, "behavior_rich", "per_100km", "collisions per 100 km",
+               "behaviour-rich, dense traffic (pooled over the cells)")]  # fmt: skip
+    if len(stock) and ("", "rule") in stock.index:
+        panels.append((axes[1], stock, "default", "collision_pct", "episodes with a collision [%]",
+                       "default, dense stock traffic"))  # fmt: skip
+    else:
+        axes[1].set_axis_off()
+    for ax, table, family, metric, xlabel, title in panels:
+        rule = table.loc[("", "rule")]
+        x_edge = rule[metric] + (STOCK_MARGIN if metric == "collision_pct" else 0.0)
+        floor = RULE_FLOOR * rule.avg_speed
+        for j, arm in enumerate(arms):
+            if (arm, family) not in table.index:
+                continue
+            p = table.loc[(arm, family)]
+            if metric == "per_100km":
+                verdict = versus_rule(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
+            else:
+                ok = keeps_up(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
+                verdict = "keeps up" if ok else "falls short"
+            ax.errorbar(p[metric], p.avg_speed, capsize=3, ls="none", marker="o", ms=6,
+                        color=f"C{j}", label=f"{arm}: {verdict}",
+                        xerr=[[max(p[metric] - p[f"{metric}_lo"], 0)],
+                              [max(p[f"{metric}_hi"] - p[metric], 0)]],
+                        yerr=[[max(p.avg_speed - p.avg_speed_lo, 0)],
+                              [max(p.avg_speed_hi - p.avg_speed, 0)]])  # fmt: skip
+        ax.errorbar(rule[metric], rule.avg_speed, capsize=3, ls="none", marker="*", ms=13,
+                    color="k", label="rule-based ego",
+                    xerr=[[max(rule[metric] - rule[f"{metric}_lo"], 0)],
+                          [max(rule[f"{metric}_hi"] - rule[metric], 0)]],
+                    yerr=[[max(rule.avg_speed - rule.avg_speed_lo, 0)],
+                          [max(rule.avg_speed_hi - rule.avg_speed, 0)]])  # fmt: skip
+        top = max(ax.get_ylim()[1], floor + 1)
+        rule_text = (
+            f"fewer than it, at >= {RULE_FLOOR:g} x its speed"
+            if metric == "per_100km"
+            else f"<= {STOCK_MARGIN:g} point above it, at >= {RULE_FLOOR:g} x its speed"
+        )
+        ax.fill_between([0, x_edge], floor, top, color="tab:green", alpha=0.15, lw=0,
+                        label=f"meets the rule: {rule_text}")  # fmt: skip
+        ax.axhline(floor, color="tab:green", lw=0.8, ls="--")
+        ax.set_ylim(top=top)
+        ax.set_xscale("symlog", linthresh=1.0)
+        ax.set_xlim(left=-0.1)  # a point at 0 stays whole
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel("mean speed [m/s]")
+        ax.set_title(title, fontsize=10)
+        # below the panel: inside it would hide points
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
+    fig.suptitle("Against the rule-based ego (issue 32's two rules; 95% intervals)", fontsize=11)
+    fig.tight_layout()
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
+    plt.close(fig)
+    return True
+
+
 # ---------------------------------------------------------------------- the page
 def make_figures(
     sources: list[str | Path],
@@ -262,6 +340,8 @@ def make_figures(
         paths["ablation"] = out / "figures" / "ablation.png"
     if speed_vs_safety(stats, out / "figures" / "speed_vs_safety.png"):
         paths["speed_vs_safety"] = out / "figures" / "speed_vs_safety.png"
+    if yardstick(stats, df, out / "figures" / "yardstick.png"):
+        paths["yardstick"] = out / "figures" / "yardstick.png"
     paths["readme"] = out / "README.md"
     write_atomic(paths["readme"], readme(df, stats, table, own, [*sources, *stock], models, paths))
     return paths
