@@ -254,7 +254,7 @@ def test_issue_32s_two_rules_are_read_per_arm_with_its_headline_verdict():
     both rules; the main arm (4 and 3 crashes at 24 m/s, under 0.95 x 28.5; default 5% in
     stock) meets neither. Each arm's headline verdict comes from the claims table."""
     from bgap.analysis.paper import HEADLINE
-    from bgap.analysis.tables import yardstick_markdown
+    from bgap.analysis.tables import yardstick_cells, yardstick_markdown
 
     def episodes(policy, crashes, speed, traffic="paper", seeds=(0, 1)):
         frames = []
@@ -283,8 +283,8 @@ def test_issue_32s_two_rules_are_read_per_arm_with_its_headline_verdict():
     headline = pd.DataFrame({"claim": [HEADLINE, HEADLINE, other],
                              "arm": ["learner-ppo", "main", "learner-ppo"], "n": [40, 40, 40],
                              "verdict": ["holds", "contradicted", "not significant"]})  # fmt: skip
-    rows = {line.split(" | ")[0].strip("| "): line.split(" | ")
-            for line in yardstick_markdown(stats, headline, df).splitlines()}  # fmt: skip
+    table = yardstick_markdown(stats, headline, yardstick_cells(stats, df))
+    rows = {line.split(" | ")[0].strip("| "): line.split(" | ") for line in table.splitlines()}
     ppo = rows["PPO learner (its search's network, observation and recipe)"]
     # seeds' rates 1/112 and 0 per km x 100: mean 0.45, t(1) half-width 12.71 x 0.45 = 5.67
     assert ppo[1].startswith("0.4 [0.0, 6.1] at 28.00 [") and ppo[3] == "**yes**"
@@ -306,7 +306,7 @@ def test_pooled_points_have_intervals_across_training_seeds(tmp_path):
     from scipy import stats as sps
 
     from bgap.analysis.plots import yardstick
-    from bgap.analysis.tables import pooled_intervals, rule_markdown
+    from bgap.analysis.tables import pooled_intervals, rule_markdown, yardstick_cells
 
     def episodes(policy, mix, crashes, speed, traffic="paper"):
         crashed = np.zeros(100, bool)
@@ -343,9 +343,10 @@ def test_pooled_points_have_intervals_across_training_seeds(tmp_path):
     stats, _ = cell_stats(df)
     table = rule_markdown(stats)
     assert f"| {p.per_100km:.1f} at {p.avg_speed:.2f}," in table  # the pooled column
-    assert yardstick(stats, df, tmp_path / "y.png") and (tmp_path / "y.png").stat().st_size
+    y = tmp_path / "y.png"
+    assert yardstick(yardstick_cells(stats, df), y) and y.stat().st_size
     no_rule = df[df.family != "rule"]
-    assert not yardstick(cell_stats(no_rule)[0], no_rule, tmp_path / "n.png")
+    assert not yardstick(yardstick_cells(cell_stats(no_rule)[0], no_rule), tmp_path / "n.png")
 
 
 def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):

@@ -20,7 +20,7 @@ from bgap.analysis.tables import (
 from bgap.common.vocab import SPEED_FLOOR
 
 
-def readme(df, stats, table, own, sources, models, paths) -> str:
+def readme(df, stats, table, own, sources, models, paths, yard) -> str:
     ablated = ablation_table(df)
     trained = df[df.train_seed >= 0]
     seeds = trained.groupby(["arm", "density", "family"]).train_seed.nunique()
@@ -71,7 +71,7 @@ def readme(df, stats, table, own, sources, models, paths) -> str:
         "read. Point estimates decide; 95% intervals in brackets, across training seeds "
         "(each seed's pooled value: its crashes over its kilometres in each cell, averaged "
         "over the cells); `figures/yardstick.png` draws this table.\n",
-        yardstick_markdown(stats, table, df) if len(table) else "(no claims: one family only)\n",
+        yardstick_markdown(stats, table, yard) if len(table) else "(no claims: one family only)\n",
         "## In observed traffic (replayed tables)\n",
         "The paper's premise is that behaviour-rich training prepares a policy for real "
         "traffic. Here every policy drives among recorded vehicles (issue 37): tables of SUMO "

@@ -11,9 +11,7 @@ import pandas as pd
 
 from bgap.analysis.claims import claims, own_traffic
 from bgap.analysis.episodes import (
-    LEARNER_ARM,
     METRICS,
-    MIXTURE_ARMS,
     _distinct,
     arm_name,
     cell_stats,
@@ -24,7 +22,7 @@ from bgap.analysis.episodes import (
 from bgap.analysis.page import readme
 from bgap.analysis.paper import PAPER_CRASHES
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, keeps_up, versus_rule
-from bgap.analysis.tables import pooled_intervals, table2
+from bgap.analysis.tables import Yardstick, table2, yardstick_cells
 from bgap.common.plotting import pyplot
 from bgap.common.runs import write_atomic
 
@@ -223,22 +221,18 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     return True
 
 
-def yardstick(stats: pd.DataFrame, df: pd.DataFrame, path: Path) -> bool:
-    """Issue 32's two rules at a glance, per arm that trains both families: left, the
-    behaviour-rich policy's collisions per 100 km against its speed pooled over the dense
-    cells (:func:`bgap.analysis.tables.pooled_intervals`, 95% intervals across training
-    seeds); right, the default policy's collision % against its speed in dense stock traffic
-    (:func:`bgap.analysis.episodes.cell_stats`' intervals). The rule-based ego is the star;
-    the shaded corner is where a policy meets the rule. Symmetric-log x axes keep the
+def yardstick(yard: Yardstick, path: Path) -> bool:
+    """Issue 32's two rules at a glance, per arm that trains both families
+    (:func:`bgap.analysis.tables.yardstick_cells`): left, the behaviour-rich policy's
+    collisions per 100 km against its speed pooled over the dense cells (95% intervals across
+    training seeds); right, the default policy's collision % against its speed in dense stock
+    traffic (:func:`bgap.analysis.episodes.cell_stats`' intervals). The rule-based ego is the
+    star; the shaded corner is where a policy meets the rule. Symmetric-log x axes keep the
     authors' configuration on the page without crowding the learners."""
-    dense = pooled_intervals(df, "dense")
-    stock = stats[(stats.traffic == "stock") & (stats.density == "dense")] if len(stats) else stats
-    if len(stock):
-        stock = stock[stock.radius == stock.radius.max()].set_index(["arm", "family"])
+    dense, stock = yard.dense, yard.stock
     if ("", "rule") not in dense.index:
         return False
-    arms = [a for a in MIXTURE_ARMS if (a, "behavior_rich") in dense.index]
-    arms += sorted(a for a, f in dense.index if a.startswith(LEARNER_ARM) and f == "behavior_rich")
+    arms = [a for a in yard.arms if (a, "behavior_rich") in dense.index]
     if not arms:
         return False
     plt = pyplot()
@@ -340,8 +334,10 @@ def make_figures(
         paths["ablation"] = out / "figures" / "ablation.png"
     if speed_vs_safety(stats, out / "figures" / "speed_vs_safety.png"):
         paths["speed_vs_safety"] = out / "figures" / "speed_vs_safety.png"
-    if yardstick(stats, df, out / "figures" / "yardstick.png"):
+    yard = yardstick_cells(stats, df)
+    if yardstick(yard, out / "figures" / "yardstick.png"):
         paths["yardstick"] = out / "figures" / "yardstick.png"
     paths["readme"] = out / "README.md"
-    write_atomic(paths["readme"], readme(df, stats, table, own, [*sources, *stock], models, paths))
+    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard)
+    write_atomic(paths["readme"], page)
     return paths

@@ -4,6 +4,7 @@ checkpoints each training selected and the departures from the paper."""
 from __future__ import annotations
 
 import json
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -25,6 +26,13 @@ from bgap.common.vocab import CRASH_KINDS
 
 
 # ---------------------------------------------------------------------- tables
+def _pm(row, metric: str, digits: int) -> str:
+    """``row``'s ``metric`` with its interval (``<metric>_lo``, ``_hi``), a cells row or
+    tuple: "2.3 [0.0, 6.0]"."""
+    value, lo, hi = (getattr(row, f"{metric}{end}") for end in ("", "_lo", "_hi"))
+    return f"{value:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+
+
 def table2(stats: pd.DataFrame) -> str:
     """Table II: the paper's reported rates, then every policy of ours in that cell (n = 5,
     100% aggressive, largest radius), the baselines included."""
@@ -81,8 +89,8 @@ def paper_comparison(stats: pd.DataFrame, arm: str = "main") -> str:
             x = s.iloc[0]
             speed = PAPER_SPEED.get((density, family), {}).get(mix)
             lines.append(
-                f"| {n_of(density)} | {family} | {mix:.0%} | {value} | {x.collision_pct:.1f} "
-                f"[{x.collision_pct_lo:.1f}, {x.collision_pct_hi:.1f}] | "
+                f"| {n_of(density)} | {family} | {mix:.0%} | {value} | "
+                f"{_pm(x, 'collision_pct', 1)} | "
                 f"{idle.iloc[0].collision_pct:.1f} | {'-' if speed is None else speed} | "
                 f"{x.avg_speed:.2f} |"
             )
@@ -292,29 +300,45 @@ def _beside_rule(table: pd.DataFrame, arm: str, family: str):
     return None
 
 
-def _pm(row, metric: str, digits: int) -> str:
-    """``row``'s ``metric`` with its interval: "2.3 [0.0, 6.0]"."""
-    lo, hi = row[f"{metric}_lo"], row[f"{metric}_hi"]
-    return f"{row[metric]:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+class Yardstick(NamedTuple):
+    """What issue 32's two rules are read on, by the results page's table and
+    ``figures/yardstick.png`` (:func:`yardstick_cells`)."""
+
+    arms: list[str]
+    """Arms that train both families: the mixture arms, then the learner arms."""
+    dense: pd.DataFrame
+    """:func:`pooled_intervals` of the dense cells."""
+    sparse: pd.DataFrame
+    """:func:`pooled_intervals` of the sparse cells."""
+    stock: pd.DataFrame
+    """Cells of dense stock traffic at the largest radius, indexed by (arm, family)."""
 
 
-def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame, df: pd.DataFrame) -> str:
-    """Issue 32's question per arm that trains both families on the mixture: does its
-    behaviour-rich policy beat the rule-based ego in the paper's dense traffic (pooled over
-    the cells of the episodes ``df``, :func:`pooled_intervals`: fewer collisions per 100 km at
-    0.95 x its speed, :func:`bgap.analysis.stats.versus_rule`), and does its default policy
-    keep up with it in stock traffic (collision % at most 1 point above its, at 0.95 x its
-    speed, :func:`bgap.analysis.stats.keeps_up`)? Beside them, the sparse cells judged the
-    same way (reported, not a rule) and the arm's verdict on the paper's headline claim, so
-    the claim can be read with a learner that drives as well as the hand-built driver. Point
-    estimates decide; 95% intervals across training seeds in brackets."""
+def yardstick_cells(stats: pd.DataFrame, df: pd.DataFrame) -> Yardstick:
+    """:class:`Yardstick` of the cells ``stats`` and their episodes ``df``, computed once
+    for the table and the figure."""
+    present = set(stats.arm) if len(stats) else set()
+    arms = [a for a in MIXTURE_ARMS if a in present]
+    arms += sorted(a for a in present if str(a).startswith(LEARNER_ARM))
+    stock = stats[(stats.traffic == "stock") & (stats.density == "dense")] if len(stats) else stats
+    if len(stock):
+        stock = stock[stock.radius == stock.radius.max()].set_index(["arm", "family"])
+    return Yardstick(arms, pooled_intervals(df, "dense"), pooled_intervals(df, "sparse"), stock)
+
+
+def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame, yard: Yardstick) -> str:
+    """Issue 32's question per arm that trains both families on the mixture
+    (:func:`yardstick_cells`): does its behaviour-rich policy beat the rule-based ego in the
+    paper's dense traffic (pooled over the cells, :func:`pooled_intervals`: fewer collisions
+    per 100 km at 0.95 x its speed, :func:`bgap.analysis.stats.versus_rule`), and does its
+    default policy keep up with it in stock traffic (collision % at most 1 point above its, at
+    0.95 x its speed, :func:`bgap.analysis.stats.keeps_up`)? Beside them, the sparse cells
+    judged the same way (reported, not a rule) and the arm's verdict on the paper's headline
+    claim, so the claim can be read with a learner that drives as well as the hand-built
+    driver. Point estimates decide; 95% intervals across training seeds in brackets."""
     if "per_100km" not in stats or stats.empty:
         return "(the evaluations hold no distance travelled: evaluate again)\n"
-    arms = [a for a in MIXTURE_ARMS if a in set(stats.arm)]
-    arms += sorted(a for a in set(stats.arm) if str(a).startswith(LEARNER_ARM))
-    dense, sparse = pooled_intervals(df, "dense"), pooled_intervals(df, "sparse")
-    stock = stats[(stats.traffic == "stock") & (stats.density == "dense")]
-    stock = stock[stock.radius == stock.radius.max()].set_index(["arm", "family"])
+    arms, dense, sparse, stock = yard
     headline = claims[claims.claim == HEADLINE]
     lines = [
         "| arm | behaviour-rich, dense (pooled): per 100 km at m/s | rule-based ego | beats "
@@ -377,8 +401,7 @@ def replay_markdown(stats: pd.DataFrame) -> str:
                 split = " / ".join(f"{getattr(r, f'{k}_pct'):.0f}" for k in kinds)
                 lines.append(
                     f"| {traffic[len(REPLAY) :]} | {r.mix:.2f} | {_label(r.arm, r.family)} | "
-                    f"{r.collision_pct:.1f} [{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}]"
-                    f" | {r.per_100km:.1f} [{r.per_100km_lo:.1f}, {r.per_100km_hi:.1f}] | "
+                    f"{_pm(r, 'collision_pct', 1)} | {_pm(r, 'per_100km', 1)} | "
                     f"{r.avg_speed:.2f} | {split} | {verdict} |"
                 )
         parts.append("\n".join(lines) + "\n")
