@@ -43,3 +43,40 @@ def test_one_torch_thread_stays_one_after_the_simulators_first_kernel():
     that layer first so that 1 stays 1."""
     assert _torch_threads_after_a_reset("plain") == 2
     assert _torch_threads_after_a_reset("helper") == 1
+
+
+def test_side_by_side_processes_share_the_cores_they_may_run_on(monkeypatch):
+    """The share is the process's affinity over the processes, never below one thread."""
+    from bgap.common.threads import cores_per_process
+
+    for cores, processes, share in ((16, 3, 5), (16, 2, 8), (2, 2, 1), (2, 4, 1), (1, 1, 1)):
+        monkeypatch.setattr(os, "sched_getaffinity", lambda _, n=cores: set(range(n)))
+        assert cores_per_process(processes) == share
+
+
+def _threads_after_a_kernel() -> tuple[int, int]:
+    """In a pool's worker: torch's and numba's threads once a parallel kernel has run, as
+    the simulator's first reset runs one."""
+    import numba
+    import numpy as np
+    import torch
+
+    from bgap.common.threads import _first_parallel_kernel
+
+    _first_parallel_kernel(np.zeros(8))
+    return torch.get_num_threads(), numba.get_num_threads()
+
+
+def test_trainings_side_by_side_run_no_more_kernel_threads_than_cores():
+    """bgap.train's pool of two processes (workers=2): one torch thread each, and numba's
+    kernels together on at most the cores there are. With numba's default in each (one
+    thread per core, as before 2026-12-04) two processes on two cores ran four threads and
+    every kernel waited at its barrier: 2.8x slower (python -m bgap.bench side)."""
+    from bgap.experiments.train import side_by_side_pool
+
+    cores = len(os.sched_getaffinity(0))
+    with side_by_side_pool(2) as pool:
+        counts = [f.result() for f in [pool.submit(_threads_after_a_kernel) for _ in range(2)]]
+    for torch_threads, numba_threads in counts:
+        assert torch_threads == 1
+        assert 1 <= numba_threads and 2 * numba_threads <= max(2, cores)

@@ -12,6 +12,8 @@ either way); the time does.
 
 from __future__ import annotations
 
+import os
+
 import numba
 import numpy as np
 
@@ -32,3 +34,12 @@ def set_threads(torch_threads: int, numba_threads: int | None = None) -> None:
     if numba_threads is not None:
         numba.set_num_threads(max(1, min(numba_threads, numba.config.NUMBA_NUM_THREADS)))
     torch.set_num_threads(max(1, torch_threads))
+
+
+def cores_per_process(processes: int) -> int:
+    """This process's cores (its CPU affinity where the system has one, not the machine's
+    count) shared out among ``processes`` side-by-side processes, at least one each: the
+    numba threads each may run without their kernels' barriers waiting on one another."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    cores = len(affinity(0)) if affinity else os.cpu_count() or 1
+    return max(1, cores // max(1, processes))

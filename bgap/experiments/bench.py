@@ -12,6 +12,8 @@
     python -m bgap.bench cluster    # the same 4 trainings (a minute each) on a local Ray
                                     # cluster of 1 node, then 2 nodes (one CPU each; the
                                     # cluster extra)
+    python -m bgap.bench side       # 2 SB3 trainings side by side (bgap.train workers=2):
+                                    # numba's default threads in each vs bgap.train's share
 
 Figures are reported beside a baseline measured in the same run, since machines are noisy.
 """
@@ -525,6 +527,39 @@ def bench_cluster(seconds: float, trainings: int = 4) -> None:
     print(f"2 nodes / 1 node throughput: {walls[1] / walls[2]:.2f}x")
 
 
+def _transitions_per_second(seconds: float) -> float:
+    return _sb3_rate(seconds)[1]
+
+
+def bench_side(seconds: float, trainings: int = 2) -> None:
+    """Transitions/s of ``trainings`` SB3 trainings side by side, one spawned process each as
+    in ``bgap.train workers=N``: first with numba's default threads in every process (one per
+    core, as bgap.train ran them before 2026-12-04), then in bgap.train's pool (the cores
+    shared out). Prints both sums and their ratio."""
+    from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
+    from multiprocessing import get_context
+
+    import numba
+
+    from bgap.common.threads import cores_per_process, set_threads
+    from bgap.experiments.train import side_by_side_pool
+
+    pools = {
+        f"numba's default ({numba.config.NUMBA_NUM_THREADS} threads each)": ProcessPoolExecutor(
+            trainings, get_context("spawn"), initializer=partial(set_threads, 1)
+        ),
+        f"bgap.train's share ({cores_per_process(trainings)} each)": side_by_side_pool(trainings),
+    }
+    rates = []
+    for name, pool in pools.items():
+        with pool:
+            rates.append(sum(pool.map(_transitions_per_second, [seconds] * trainings)))
+        print(f"{trainings} trainings side by side, {name}: {rates[-1]:.0f} transitions/s",
+              flush=True)  # fmt: skip
+    print(f"share / default: {rates[1] / rates[0]:.2f}x")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
         prog="bgap.bench",
@@ -550,7 +585,10 @@ def main(argv: list[str] | None = None) -> None:
         help="learn: values of K",
     )
     parser.add_argument(
-        "--trainings", type=positive(int), default=4, help="cluster: trainings per cluster"
+        "--trainings",
+        type=positive(int),
+        default=None,
+        help="cluster: trainings per cluster (default 4); side: trainings side by side (default 2)",
     )
     args = parser.parse_args(argv)
     # a cluster task's start costs seconds: a minute of work per task keeps it a small part
@@ -560,7 +598,9 @@ def main(argv: list[str] | None = None) -> None:
     elif args.what == "learn":
         bench_learn(args.seconds, tuple(args.members))
     elif args.what == "cluster":
-        bench_cluster(args.seconds, args.trainings)
+        bench_cluster(args.seconds, args.trainings or 4)
+    elif args.what == "side":
+        bench_side(args.seconds, args.trainings or 2)
     else:
         BENCHES[args.what](args.seconds)
 
@@ -572,6 +612,7 @@ BENCHES: dict[str, Callable[[float], None]] = {
     "learn": bench_learn,
     "evaluate": bench_evaluate,
     "cluster": bench_cluster,
+    "side": bench_side,
 }
 
 if __name__ == "__main__":

@@ -24,6 +24,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import ExitStack
 from dataclasses import replace
+from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -52,7 +53,7 @@ from bgap.common.cluster import (
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
 from bgap.common.runs import CHECKPOINT_STATE, exclusive, held_by_parent, pack, unpack, write_atomic
-from bgap.common.threads import set_threads
+from bgap.common.threads import cores_per_process, set_threads
 from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
@@ -206,9 +207,7 @@ def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]
         return _train_on_cluster(cfgs, dirs)
     if workers <= 1 or len(cfgs) == 1 or cfgs[0].profile.train_steps < SIDE_BY_SIDE_STEPS:
         return [train(c) for c in cfgs]
-    # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
-    context = get_context("spawn")
-    with ExitStack() as locks, ProcessPoolExecutor(min(workers, len(cfgs)), context) as pool:
+    with ExitStack() as locks, side_by_side_pool(min(workers, len(cfgs))) as pool:
         for d in sorted(set(dirs)):
             locks.enter_context(exclusive(d))
         futures = {pool.submit(_train_worker, c, dirs): c for c in cfgs}
@@ -229,6 +228,16 @@ def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]
         finally:
             bar.close()
     return dirs
+
+
+def side_by_side_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes (not forked: a process that has run torch's
+    OpenMP cannot fork safely), each with one torch thread and an equal share of the cores
+    for the simulator's numba kernels: with numba's default (one thread per core) in every
+    process, two trainings on two cores ran four kernel threads and each kernel waited at
+    its barrier for a thread the other process held (``python -m bgap.bench side``)."""
+    init = partial(set_threads, 1, cores_per_process(workers))
+    return ProcessPoolExecutor(workers, get_context("spawn"), initializer=init)
 
 
 def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Path]:
