@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import shutil
 import subprocess
 import sys
 import time
@@ -487,6 +488,22 @@ def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters
         resumed = _train(run, learner, resume=saved)
         assert resumed.wait(timeout=600) == 0, f"repetition {k}: the resume failed"
         assert _weights(run) == _weights(whole), f"repetition {k}: other weights"
+
+
+@pytest.mark.parametrize("learner", ["learner=sb3", "learner=batched"])
+def test_a_kill_after_the_last_checkpoint_before_model_zip_resumes_to_the_same_weights(
+    tmp_path, learner
+):
+    """Killed between the last checkpoint (of the final step) and the renaming of model.zip,
+    the window CI's random kills once met (PPO): resume=true has nothing left to learn and
+    writes the uninterrupted training's model.zip, where it raised an AttributeError."""
+    whole = tmp_path / "whole"
+    assert _train(whole, learner).wait(timeout=600) == 0
+    cut = tmp_path / "cut"
+    shutil.copytree(whole, cut)
+    (cut / "model.zip").unlink()  # what such a kill leaves: the checkpoint of the last step
+    assert _train(cut, learner, resume=True).wait(timeout=600) == 0
+    assert _weights(cut) == _weights(whole)
 
 
 def test_a_log_whose_vehicles_keep_their_own_clocks_is_refused_and_a_common_clock_read():

@@ -256,6 +256,39 @@ def test_interrupted_and_resumed_training_equals_an_uninterrupted_one(tmp_path, 
     np.testing.assert_array_equal(_parameters(whole), _parameters(tmp_path / "cut"))
 
 
+def test_a_kill_after_an_evaluation_leaves_evaluations_csv_as_if_never_killed(tmp_path):
+    """Evaluations recorded after the last checkpoint are played again by the resumed run:
+    they are not kept twice (the vector backend resumes exactly, so the file equals an
+    uninterrupted run's)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from bgap.experiments.train import train
+
+    cfg = _short(tmp_path, "backend=vector", "mix_sampling=paper", "profile.eval_every_episodes=2",
+                 "profile.eval_during_training=2")  # fmt: skip
+    whole = train(replace(cfg, run_dir=str(tmp_path / "whole")), progress=False)
+
+    class Killed(BaseException):  # no handler runs, as with SIGKILL
+        pass
+
+    class KillAt(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= 110:  # past evaluations after the checkpoint of 60
+                raise Killed
+            return True
+
+    cut = replace(cfg, run_dir=str(tmp_path / "cut"))
+    with pytest.raises(Killed):
+        train(cut, progress=False, callbacks=[KillAt()])
+    before = pd.read_csv(tmp_path / "cut/evaluations.csv")
+    saved = pickle.loads((tmp_path / "cut/checkpoints/state.pkl").read_bytes())
+    assert (before.steps > saved["monitor"]["steps"]).any()  # the case: rows past it
+    train(replace(cut, resume=True), progress=False)
+    pd.testing.assert_frame_equal(
+        pd.read_csv(tmp_path / "cut/evaluations.csv"), pd.read_csv(whole / "evaluations.csv")
+    )
+
+
 def test_resume_continues_from_the_checkpoint_on_highway_env(tmp_path, monkeypatch):
     """highway-env's environments are not saved: the resumed run continues the counters,
     the model and the replay buffer on fresh episodes."""

@@ -204,10 +204,18 @@ class TrainingMonitor:
         shutil.rmtree(old, ignore_errors=True)
 
     def restore(self, state: dict[str, Any]) -> None:
-        """The counters and running statistics of a checkpoint's ``state.pkl``."""
+        """The counters and running statistics of a checkpoint's ``state.pkl``. Evaluations
+        the run recorded after that checkpoint (a kill before the next one) are dropped from
+        ``evaluations.csv``: the resumed run plays them again."""
         self.state.update(state["monitor"])
         self.stats.__dict__.update(state["stats"])
         self.recent = state["recent"]
+        path = self.run_dir / "evaluations.csv"
+        if path.exists():
+            evaluations = pd.read_csv(path)
+            kept = evaluations[evaluations.steps <= self.state["steps"]]
+            if len(kept) < len(evaluations):
+                write_atomic(path, kept.to_csv(index=False))
 
 
 REFERENCES = ("idle", "rule")

@@ -184,7 +184,8 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
         ) from None
     finally:
         env.close()
-    callback.checkpoint()
+    if remaining > 0:  # else the checkpoint resumed from is already the last one (a kill
+        callback.checkpoint()  # came before model.zip), and the callback never met the model
     write_atomic(run_dir / "model.zip", model.save)  # written last, whole: "finished"
     plot_learning_curves(run_dir)
     return run_dir
