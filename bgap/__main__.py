@@ -20,6 +20,8 @@ COMMANDS = {
     "recipe": ("bgap.recipe", "search the training recipe and check it on more seeds"),
     "parity": ("bgap.parity", "compare the vector backend with highway-env"),
     "figures": ("bgap.figures", "the study's figures, claims and results page"),
+    "zoo": ("bgap.zoo", "export trained run folders into the zoo (kept in git)"),
+    "watch": ("bgap.watch", "render a policy (zoo name or model file) to a video"),
     "select": ("bgap.select", "keep the best of each group of training seeds on validation"),
     "bench": ("bgap.bench", "benchmarks: simulator, learner, CMetric, cluster"),
     "pipeline": ("bgap.pipeline", "the DVC pipeline's code deps; relock moved stages"),

@@ -35,6 +35,8 @@ COMMANDS = (
     "bgap.parity",
     "bgap.bench",
     "bgap.pipeline",
+    "bgap.zoo",
+    "bgap.watch",
 )
 MAX_LINES = 40
 

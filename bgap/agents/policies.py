@@ -2,7 +2,8 @@
 
 A policy spec is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``); the path
 of a saved Stable-Baselines3 model (``model.zip`` or its run folder; DQN, QR-DQN, PPO, A2C,
-SAC and TD3 are recognised from the file, or named as ``ppo:path``) or a loaded model, played
+SAC and TD3 are recognised from the file, or named as ``ppo:path``), a zoo name
+(``zoo:main/sparse/behavior_rich/s0``, :mod:`bgap.agents.zoo`) or a loaded model, played
 greedily; or a callable (:func:`bgap.sim.rollout.as_callable`). :func:`rollout` plays any
 spec on seeded episodes through the simulators' one rollout loop.
 """
@@ -17,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from bgap.agents import zoo
 from bgap.agents.observation import ObservationFeatures, model_features
 from bgap.agents.rule_based import rule_based
 from bgap.common.errors import ConfigError
@@ -25,7 +27,7 @@ from bgap.common.vocab import BASELINES, IDLE, LANE_LEFT, N_ACTIONS
 from bgap.sim import rollout as sim_rollout
 from bgap.sim.rollout import Policy, Rollout, as_callable, greedy
 
-__all__ = ["as_policy", "baseline", "greedy", "load_model", "model_path", "rollout"]
+__all__ = ["as_policy", "baseline", "check_rows", "greedy", "load_model", "model_path", "rollout"]
 
 
 def baseline(name: str, config: dict[str, Any] | None = None) -> Policy:
@@ -46,7 +48,10 @@ def baseline(name: str, config: dict[str, Any] | None = None) -> Policy:
 
 
 def model_path(spec: str | Path) -> Path:
-    """``model.zip`` itself, or inside the run folder ``spec``."""
+    """``model.zip`` itself, inside the run folder ``spec``, or the zoo's archive ``spec``
+    names."""
+    if zoo.is_zoo(spec):
+        return zoo.resolve_one(str(spec))
     path = Path(spec)
     if path.is_dir():
         path = path / "model.zip"
@@ -86,15 +91,16 @@ def load_model(spec: str | Path) -> Any:
     algo, _, rest = str(spec).partition(":")
     named = bool(rest) and algo.lower() in classes
     path = model_path(rest if named else spec)
+    fix = "give a model.zip saved by bgap.train or SB3"
+    if zoo.is_zoo(spec):
+        fix = "the zoo's file is damaged: restore it with `git checkout -- zoo`"
 
     def load() -> Any:
         name = algo.lower() if named else _algorithm_of(path)
         cls = classes[name]() if name == "qrdqn" else classes[name]
         return cls.load(path, device="cpu")
 
-    return read_or_refuse(
-        load, f"{path} is not a readable model", "give a model.zip saved by bgap.train or SB3"
-    )
+    return read_or_refuse(load, f"{path} is not a readable model", fix)
 
 
 def _qrdqn() -> type:
@@ -142,9 +148,23 @@ def greedy_on(model: Any, features: ObservationFeatures) -> Policy:
     return lambda obs, rngs: act(features(obs), rngs)
 
 
+def check_rows(name: Any, rows: int | None, config: dict[str, Any]) -> None:
+    """Refuse, in one line naming both, to play a model that reads ``rows`` observed
+    vehicles in an environment ``config`` that observes another number."""
+    have = config.get("observation", {}).get("vehicles_count")
+    if rows is not None and have is not None and int(have) != rows:
+        raise ConfigError(
+            f"policy {name} reads {rows} observed vehicles, this environment observes {have}: "
+            f"play it at its own density (env.observed_vehicles={rows}, or the env preset it "
+            "was trained in)"
+        )
+
+
 def rollout(config: dict[str, Any], policy: Any, seeds: Iterable[int], *args, **kwargs) -> Rollout:
     """:func:`bgap.sim.rollout.rollout` for any policy spec: names, paths and models' observation
-    options resolved here."""
+    options resolved here; a model that observes another number of vehicles is refused."""
     if isinstance(policy, (str, Path)) or hasattr(policy, "predict"):
-        policy = as_policy(policy, config)[0]
+        name = policy if isinstance(policy, (str, Path)) else type(policy).__name__
+        policy, rows = as_policy(policy, config)
+        check_rows(name, rows, config)
     return sim_rollout.rollout(config, policy, seeds, *args, **kwargs)

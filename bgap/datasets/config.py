@@ -16,6 +16,10 @@ from bgap.datasets.sumo import SumoConfig
 from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
 from bgap.sim.config import BaseConfig
 
+ZOO = "zoo:"
+"""A zoo name's prefix (:data:`bgap.agents.zoo.PREFIX`; not imported: the dataset commands'
+schemas stay clear of the agents)."""
+
 
 @dataclass
 class SimulateConfig(BaseConfig):
@@ -25,20 +29,30 @@ class SimulateConfig(BaseConfig):
     out: str = "outputs/simulate"
     """Output folder: trajectories.parquet, config.yaml, command.txt (and the GIF)."""
     policy: str = "idle"
-    """Ego policy while recording: a baseline (``idle``, ``random``, ``left``) or a trained
-    model (``model.zip`` or its run folder)."""
+    """Ego policy while recording: a baseline (``idle``, ``random``, ``left``), a trained
+    model (``model.zip`` or its run folder) or a zoo name (``zoo:main/sparse/default/s0``)."""
+    zoo_override: bool = False
+    """Play a zoo policy under other observation settings than it was trained with."""
     render: bool = False
     """Also render the first episode to ``episode0.gif`` (ego green, aggressive red,
     conservative blue; ``backend=highway``)."""
 
     def __post_init__(self) -> None:
+        # before the base checks, which read the table: the setting is refused either way
+        check(
+            self.traffic.source != "replay" or self.backend == "vector",
+            "traffic",
+            self.traffic.name,
+            "replayed traffic runs on the vector backend only: add backend=vector",
+        )
         super().__post_init__()
         check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
         check(
-            self.policy in BASELINES or Path(self.policy).exists(),
+            self.policy in BASELINES or self.policy.startswith(ZOO) or Path(self.policy).exists(),
             "policy",
             self.policy,
-            f"use one of {BASELINES} or the path of a trained model (model.zip or its run folder)",
+            f"use one of {BASELINES}, the path of a trained model (model.zip or its run folder) "
+            "or a zoo name (zoo:<arm>/<density>/<family>/s<seed>)",
         )
         check(
             not self.render or self.backend == "highway",

@@ -1,7 +1,7 @@
 """``python -m bgap.simulate``: generate a behaviour-rich trajectory dataset.
 
     python -m bgap.simulate env=dense mix=0.6 episodes=20 render=true backend=highway out=data/d60
-    python -m bgap.simulate env=dense policy=outputs/runs/RUN     # watch a trained policy
+    python -m bgap.simulate env=dense policy=zoo:main/sparse/default/s0  # record a trained policy
 
 writes ``trajectories.parquet`` (schema in :mod:`bgap.sim.recorder`), ``episodes.csv`` (one row
 per episode: crash, ego speed, lane changes, ...), ``config.yaml``, ``command.txt`` and, with
@@ -16,7 +16,8 @@ import pandas as pd
 from omegaconf import DictConfig
 from tqdm import tqdm
 
-from bgap.agents.policies import load_model, rollout
+from bgap.agents import zoo
+from bgap.agents.policies import as_policy, check_rows, load_model, model_path, rollout
 from bgap.common.config import app, load
 from bgap.common.runs import exclusive, save_run_metadata, write_atomic
 from bgap.common.vocab import BASELINES, LANE_WIDTH
@@ -88,8 +89,12 @@ INTERRUPTED = (
 @app("simulate", "bgap.simulate", SCHEMAS, INTERRUPTED)
 def main(dcfg: DictConfig) -> None:
     cfg: SimulateConfig = load(dcfg)
-    if cfg.policy not in BASELINES:
-        load_model(cfg.policy)  # a file that is no model fails before anything is written
+    if cfg.policy not in BASELINES:  # a file that is no model, or a model of another
+        # observation, fails before anything is written
+        config = env_config(cfg)
+        if zoo.is_zoo(cfg.policy):
+            zoo.check_played_under(model_path(cfg.policy), config, cfg.zoo_override)
+        check_rows(cfg.policy, as_policy(load_model(cfg.policy), config)[1], config)
     with exclusive(cfg.out):
         _write(cfg, save_run_metadata(cfg.out, dcfg))
 

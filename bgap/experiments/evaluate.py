@@ -28,6 +28,7 @@ import pandas as pd
 from omegaconf import DictConfig, OmegaConf
 from tqdm import tqdm
 
+from bgap.agents import zoo
 from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, rollout
 from bgap.analysis.episodes import EPISODES, MODELS
 from bgap.analysis.stats import per_100km, spread_interval, wilson_interval
@@ -438,21 +439,40 @@ def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
     A run folder contributes the model ``checkpoint`` names (:func:`bgap.common.runs.model_file`);
     a folder without ``model.zip`` stands for every run folder below it (a pipeline's runs:
     one folder per arm and density, one run folder per training), each named by its path
-    below that folder."""
+    below that folder. A zoo name or glob (``zoo:main/sparse/*/*``) contributes its policies
+    under the names the study's tables give them (their cards' ``policy``). Two models of
+    one name, or a model named like a baseline, are refused: one would replace the other."""
     specs: dict[str, str] = {}
-    for m in map(Path, cfg.models):
+
+    def add(name: str, spec: str, given: str) -> None:
+        if name in specs or name in cfg.baselines:
+            other = specs.get(name, "the baseline")
+            raise ConfigError(
+                f"models={given!r} gives a policy named {name!r}, as does {other}: one would "
+                "replace the other in the tables; evaluate them apart (out=...) or rename a "
+                "folder"
+            )
+        specs[name] = spec
+
+    for given in cfg.models:
+        if zoo.is_zoo(given):
+            for archive in zoo.resolve(given):
+                add(zoo.policy_name(archive), str(archive), given)
+            continue
+        m = Path(given)
         if m.is_dir() and not (m / MODEL).exists():
             found = run_folders(m)
             if not found:
                 raise FileNotFoundError(f"no {MODEL} in {m} or its subfolders")
             # named by m's name and their path below it: <arm>/<density>/<density>-<family>-
             # s<seed> for an arm's folder, runs/<arm>/<density>/... for the pipeline's runs
-            specs.update({f"{m.resolve().name}/{d.relative_to(m).as_posix()}":
-                          str(model_file(d, cfg.checkpoint)) for d in found})  # fmt: skip
+            for d in found:
+                name = f"{m.resolve().name}/{d.relative_to(m).as_posix()}"
+                add(name, str(model_file(d, cfg.checkpoint)), given)
         elif m.is_dir():
-            specs[m.name] = str(model_file(m, cfg.checkpoint))
+            add(m.name, str(model_file(m, cfg.checkpoint)), given)
         else:
-            specs[m.parent.name] = str(m)
+            add(m.parent.name, str(m), given)
     specs.update({b: b for b in cfg.baselines if b in BASELINES})
     return specs
 
@@ -461,28 +481,38 @@ def model_records(specs: dict[str, Any]) -> pd.DataFrame:
     """Per saved model in ``specs``: the file evaluated, the checkpoint its training's
     validations chose (``best.json``: episode and validation collision %) beside its last
     validation, and the training's reward, agent and profile settings (JSON), so that the
-    figures describe the trainings without their run folders."""
+    figures describe the trainings without their run folders. A zoo policy's come from its
+    card, which holds the same records."""
     rows = []
     for name, spec in specs.items():
         if not isinstance(spec, (str, Path)) or str(spec) in BASELINES:
             continue
-        run = Path(spec).parent
-        row: dict[str, Any] = {"policy": name, "model": Path(spec).name}
-        if (run / "best.json").exists() and (run / "evaluations.csv").exists():
-            best = json.loads((run / "best.json").read_text())
-            validations = read_table(run / "evaluations.csv")
-            row |= {
-                "chosen_episodes": best["episodes"],
-                "chosen_collision_pct": best["collision_pct"],
-                "validated_episodes": int(validations.episodes.max()),
-                "last_collision_pct": float(validations.collision_pct.iloc[-1]),
-            }
-        if (run / CONFIG).exists():
-            settings = OmegaConf.to_container(OmegaConf.load(run / CONFIG), resolve=True)
-            kept = {g: settings.get(g) for g in ("reward", "agent", "profile")}
-            row["settings"] = json.dumps(kept, sort_keys=True)
-        rows.append(row)
+        card = zoo.card(Path(spec))
+        if card:
+            rows.append({"policy": name, **card["records"]})
+            continue
+        rows.append({"policy": name, **run_records(Path(spec))})
     return pd.DataFrame(rows)
+
+
+def run_records(model: Path) -> dict[str, Any]:
+    """:func:`model_records`' row of the model file ``model`` in its run folder."""
+    run = model.parent
+    row: dict[str, Any] = {"model": model.name}
+    if (run / "best.json").exists() and (run / "evaluations.csv").exists():
+        best = json.loads((run / "best.json").read_text())
+        validations = read_table(run / "evaluations.csv")
+        row |= {
+            "chosen_episodes": best["episodes"],
+            "chosen_collision_pct": best["collision_pct"],
+            "validated_episodes": int(validations.episodes.max()),
+            "last_collision_pct": float(validations.collision_pct.iloc[-1]),
+        }
+    if (run / CONFIG).exists():
+        settings = OmegaConf.to_container(OmegaConf.load(run / CONFIG), resolve=True)
+        kept = {g: settings.get(g) for g in ("reward", "agent", "profile")}
+        row["settings"] = json.dumps(kept, sort_keys=True)
+    return row
 
 
 @app("evaluate", "bgap.evaluate", SCHEMAS, "no results were written; rerun the command")
