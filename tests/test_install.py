@@ -129,3 +129,44 @@ def test_the_built_wheel_runs_the_main_job_and_calibration_from_another_folder(i
         env,
     )
     assert "name: user_calibrated" in (work / "sim/config.yaml").read_text()
+
+
+def _pins() -> dict[str, str]:
+    """``requirements/lock.txt``'s exact versions by normalised package name."""
+    from packaging.utils import canonicalize_name
+
+    pins = {}
+    for line in (ROOT / "requirements/lock.txt").read_text().splitlines():
+        if "==" in line and not line.lstrip().startswith("#"):
+            name, version = line.split("==")
+            pins[canonicalize_name(name.strip())] = version.split()[0].strip()
+    return pins
+
+
+def test_the_lock_file_pins_every_dependency_within_pyproject_and_is_what_is_installed():
+    """Every requirement of pyproject.toml (core and the locked extras) has one exact
+    version in the lock, inside the range pyproject.toml allows; the installed versions are
+    the lock's (the README's commands install with ``-c requirements/lock.txt``)."""
+    import tomllib
+    from importlib.metadata import PackageNotFoundError, version
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+    from packaging.version import Version
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    locked = ("dev", "cluster", "docs", "sumo")
+    wanted = [*project["dependencies"], *(r for e in locked for r in extras[e])]
+    pins = _pins()
+    for text in wanted:
+        req = Requirement(text)
+        name = canonicalize_name(req.name)
+        assert name in pins, f"{req.name} is not in requirements/lock.txt: run tools/lock.sh"
+        assert req.specifier.contains(Version(pins[name]), prereleases=True), (text, pins[name])
+    for name in ("torch", "numpy", "numba", "gymnasium", "stable-baselines3", "highway-env"):
+        try:
+            installed = Version(version(name))
+        except PackageNotFoundError:
+            continue
+        assert installed == Version(pins[name]), (name, str(installed), pins[name])
