@@ -92,7 +92,7 @@ def warm_compiled_kernels() -> None:
     from bgap.cmetric import score_trajectories
     from bgap.traffic.scenario import env_config
 
-    cfg = make_cfg("env=sparse", "env.duration=2")
+    cfg = make_cfg("env=sparse", "env.duration=4")  # longer than CMetric's 3-second window
     table = rollout(env_config(cfg), "random", [0], "vector", record=True).trajectories
     score_trajectories(table)
 

@@ -36,7 +36,8 @@ def _digest(path: Path) -> str:
 
 
 def _table(path: Path) -> Path:
-    rows = [(v, f, f * (1.0 + v % 3), 3.5 * (v % 3)) for v in range(6) for f in range(30)]
+    # 60 frames at 15 Hz: 4 s, longer than CMetric's 3-second window
+    rows = [(v, f, f * (1.0 + v % 3), 3.5 * (v % 3)) for v in range(6) for f in range(60)]
     pd.DataFrame(rows, columns=["vehicle_id", "frame", "x", "y"]).to_csv(path, index=False)
     return path
 

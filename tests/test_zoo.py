@@ -67,13 +67,32 @@ def _zoo_env(zoo_dir, monkeypatch):
     monkeypatch.setenv("BGAP_ZOO", str(zoo_dir))
 
 
-def _observations(n: int = 1000) -> np.ndarray:
-    """Observations of the paper's layout: presence, then x, y, vx, vy in [-1, 1]."""
-    rng = np.random.default_rng(7)
-    obs = rng.uniform(-1, 1, (n, 5, 5)).astype(np.float32)
-    obs[:, :, 0] = rng.random((n, 5)) < 0.8
-    obs[:, 0, 0] = 1.0
-    return obs
+def recorded_observations(density: str = "sparse", n: int = 1000) -> np.ndarray:
+    """``n`` observations recorded in the study's traffic of ``density`` (mix 0.5), 50
+    seeded episodes played with random meta-actions on the vector backend."""
+    from bgap.sim.simulators import make_vector_env
+
+    cfg = validate(compose("evaluate", [f"env={density}", "backend=vector"]))
+    from bgap.traffic.scenario import env_config
+
+    venv = make_vector_env(env_config(cfg), 50, "vector")
+    obs, _ = venv.reset(seed=list(range(50)))
+    rng = np.random.default_rng(0)
+    seen = [obs]
+    while sum(len(o) for o in seen) < n:
+        obs, *_ = venv.step(rng.integers(5, size=50))
+        seen.append(obs)
+    venv.close()
+    return np.concatenate(seen)[:n]
+
+
+def same_actions(a, b, obs: np.ndarray) -> None:
+    """Two policy specs pick the same greedy action on every observation (observation
+    options' columns added as when they play)."""
+    from bgap.agents.policies import as_policy
+
+    rngs = [np.random.default_rng(0)] * len(obs)
+    np.testing.assert_array_equal(as_policy(a)[0](obs, rngs), as_policy(b)[0](obs, rngs))
 
 
 @pytest.mark.parametrize("algo", FAMILIES)
@@ -92,10 +111,7 @@ def test_a_zoo_policy_loads_with_its_librarys_own_load_and_acts_as_the_trained_m
     source = model_file(runs[algo], "best")
     assert source.name == "best_model.zip"
     compact, original = cls.load(archive, device="cpu"), cls.load(source, device="cpu")
-    obs = _observations()
-    np.testing.assert_array_equal(
-        compact.predict(obs, deterministic=True)[0], original.predict(obs, deterministic=True)[0]
-    )
+    same_actions(compact, original, recorded_observations())
     assert compact.policy.optimizer.state_dict()["state"] == {}
     assert original.policy.optimizer.state_dict()["state"] != {}
     assert archive.stat().st_size < source.stat().st_size
@@ -347,3 +363,47 @@ def test_the_zoo_in_the_repository_loads_and_matches_its_cards():
         assert type(model).__name__.lower() == card["algorithm"]
         rows = model.observation_space.shape[0]
         assert rows == card["played_under"]["observed_vehicles"]
+
+
+@pytest.mark.slow
+def test_every_zoo_policy_acts_as_the_run_folder_model_it_came_from():
+    """Where the pipeline's run folders exist (the machine that trained them): each zoo
+    policy picks the run folder's model's action on 1,000 recorded observations."""
+    from bgap.agents import zoo
+    from bgap.common.runs import model_file
+
+    root = Path(__file__).resolve().parent.parent
+    checked = 0
+    for archive in zoo.entries(root / "zoo"):
+        card = zoo.card(archive)
+        arm, density, run = card["policy"].split("/")
+        folder = root / "outputs/pipeline/runs" / arm / density / run
+        if not folder.exists():
+            continue
+        same_actions(str(archive), str(model_file(folder, "best")), recorded_observations(density))
+        checked += 1
+    if not checked:
+        pytest.skip("no run folder of a zoo policy on this machine")
+
+
+def test_a_model_on_the_paper_grid_says_which_cells_it_skips_and_folders_never_clash(
+    tmp_path, monkeypatch, capsys
+):
+    """A sparse model on the paper's grid plays the 21 sparse cells only, and says so; the
+    default output folder is named by the settings, so the next model's evaluation is not
+    refused as 'other settings'."""
+    monkeypatch.chdir(tmp_path)
+    common = ["baselines=[idle]", "grid=paper", "backend=vector", "profile.eval_episodes=1"]
+    outs = []
+    for name in ("dqn", "ppo"):
+        status, out, err = _command(
+            "bgap.evaluate", [f"models=[zoo:{name}/sparse/*/*]", *common], monkeypatch, capsys
+        )
+        assert status == 0, err
+        assert "plays only the cells of its own density (sparse): 21 cells of dense skipped" in out
+        outs.append(next(line for line in out.splitlines() if line.startswith("results in")))
+    assert outs[0] != outs[1]
+    episodes = pd.read_parquet(Path(outs[1].split()[-1]) / "episodes.parquet")
+    model = episodes[episodes.policy != "idle"]
+    assert set(model.density) == {"sparse"} and len(model) == 21
+    assert len(episodes[episodes.policy == "idle"]) == 42

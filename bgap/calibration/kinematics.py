@@ -75,7 +75,8 @@ def class_samples(
     table["acceleration"] = accel
     table["headway"] = _headways(table, max_headway)
     # lane changes per vehicle-minute, vehicles observed at least min_minutes
-    same = (table.episode.diff() == 0) & (table.vehicle_id.diff() == 0)  # rows are sorted
+    # rows are sorted; ids of any type (a SUMO table's "dense_mix50", "v27") compare equal
+    same = table.episode.eq(table.episode.shift()) & table.vehicle_id.eq(table.vehicle_id.shift())
     table["changed"] = same & (table.lane.diff() != 0)
     per_vehicle = table.groupby(["episode", "vehicle_id"])
     changes = per_vehicle.changed.sum()

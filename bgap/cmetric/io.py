@@ -5,6 +5,7 @@ it (:func:`check_scoreable`). The Parquet written by :mod:`bgap.sim.recorder` is
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 
 # the one trajectory reader, re-exported where CMetric's users find it
@@ -31,4 +32,36 @@ def check_scoreable(df: pd.DataFrame) -> None:
         raise TrajectoryError(
             "every scene has a single vehicle; CMetric scores a vehicle against its "
             "neighbours in the traffic graph and needs at least two vehicles in a scene"
+        )
+
+
+SPEED_RANGE = (0.3, 80.0)
+"""[m/s] Road traffic's typical speed (the median over the moving rows): outside it, the
+coordinates are not in metres or the clock not in seconds (km: 1,000 x too slow; pixels or
+millimetres: far too fast)."""
+
+
+def check_scale(df: pd.DataFrame) -> None:
+    """Refuse a table whose coordinates or clock are not metres and seconds."""
+    speed = np.hypot(df["vx"].to_numpy(), df["vy"].to_numpy())
+    moving = speed[speed > 1e-6]
+    if len(moving) < 10:
+        return
+    median = float(np.median(moving))
+    low, high = SPEED_RANGE
+    if not low <= median <= high:
+        raise TrajectoryError(
+            f"the vehicles' median speed is {median:.3g} m/s, outside road traffic's "
+            f"{low:g}-{high:g} m/s: give x and y in metres and time in seconds (feet: x 0.3048)"
+        )
+
+
+def check_duration(df: pd.DataFrame, window: float) -> None:
+    """Refuse a table none of whose scenes lasts one CMetric window: no window would be
+    fitted, and every vehicle would go unscored."""
+    spans = df.groupby("episode").time.agg(lambda t: float(t.max() - t.min()))
+    if float(spans.max()) < window:
+        raise TrajectoryError(
+            f"the longest scene lasts {spans.max():.3g} s, shorter than CMetric's window "
+            f"({window:g} s): give a longer recording or a shorter cmetric.window"
         )

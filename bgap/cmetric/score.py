@@ -10,7 +10,13 @@ import pandas as pd
 from tqdm import tqdm
 
 from bgap.cmetric.centrality import Scene, centralities
-from bgap.cmetric.io import check_scoreable, load_trajectories
+from bgap.cmetric.io import (
+    TrajectoryError,
+    check_duration,
+    check_scale,
+    check_scoreable,
+    load_trajectories,
+)
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.poly import fit_polynomials, sliding_windows, window_view
 from bgap.cmetric.styles import STYLES, window_aggressiveness, window_styles
@@ -33,9 +39,16 @@ def score_trajectories(
     progress: bool = False,
 ) -> CMetricResult:
     """Score every vehicle of a trajectory table (DataFrame, CSV or Parquet)."""
+    if not isinstance(source, (str, Path, pd.DataFrame)):
+        raise TrajectoryError(
+            f"score_trajectories takes a DataFrame or a .csv/.parquet path, not "
+            f"{type(source).__name__} ({source!r:.40})"
+        )
     cfg = cfg or CMetricConfig()
     table = load_trajectories(source, fps=fps)
     check_scoreable(table)
+    check_scale(table)
+    check_duration(table, cfg.window)
     labels = table.groupby(["episode", "vehicle_id"]).label.first() if "label" in table else None
     bar = tqdm(
         total=int(table.groupby("episode").frame.nunique().sum()),

@@ -11,11 +11,14 @@ composed config into objects, first thing in every entry point, before any work 
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import functools
 import math
 import sys
 import warnings
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import Any
 
 import hydra
@@ -95,8 +98,37 @@ def compose(config_name: str, overrides: list[str] | None, schemas: Iterable[Sch
 
 def load(cfg: DictConfig) -> Any:
     """:func:`validate` for command-line entry points; a bad value raises
-    :class:`ConfigError`, which :func:`app` reports in one line."""
-    return validate(cfg)
+    :class:`ConfigError`, which :func:`app` reports in one line. A key the schema does not
+    know (Hydra's ``+key=value``, which the schema's objects would drop without a word) and a
+    setting removed with ``~key`` (which its default would silently replace, while the saved
+    config lacks it) are refused, so that a run records exactly what it used."""
+    obj = validate(cfg)
+    if dataclasses.is_dataclass(obj):
+        given = OmegaConf.to_container(cfg, resolve=True)
+        _same_keys(given, dataclasses.asdict(obj), "")
+    return obj
+
+
+def _same_keys(given: Any, used: Any, prefix: str) -> None:
+    """Refuse keys of the composed config ``given`` that the schema's objects ``used`` lack,
+    and keys they have that ``given`` lacks, naming the first."""
+    if not isinstance(given, dict) or not isinstance(used, dict):
+        return
+    for key in given:
+        if key not in used:
+            close = difflib.get_close_matches(str(key), [str(k) for k in used], n=1)
+            hint = f"did you mean {prefix}{close[0]}?" if close else "drop it"
+            raise ConfigError(
+                f"+{prefix}{key}={given[key]!r} is not a setting of this command ({hint}); "
+                "`--cfg job` lists every key"
+            )
+    for key in used:
+        if key not in given:
+            raise ConfigError(
+                f"~{prefix}{key} removes a setting this command needs: set it instead "
+                f"({prefix}{key}=...; `--cfg job` shows its default)"
+            )
+        _same_keys(given[key], used[key], f"{prefix}{key}.")
 
 
 IGNORED_BY_HYDRA = ("hydra.run.dir", "hydra.sweep.dir", "hydra.output_subdir")
@@ -107,6 +139,20 @@ def _refuse_ignored(arg: str) -> None:
     raise ConfigError(
         f"{arg} is not used: bgap writes no Hydra output folder; give the command's own "
         "output setting (out=, run_dir= or root=) instead"
+    )
+
+
+def _is_group(key: str) -> bool:
+    """Whether ``key`` names a preset group of the packaged config (``env``, ``behavior``)."""
+    return "." not in key and (Path(CONF_DIR) / key).is_dir()
+
+
+def _refuse_removed(arg: str) -> None:
+    group = arg[1:].split("=")[0]
+    names = sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+    raise ConfigError(
+        f"{arg} removes the {group} preset, which this command needs: choose one instead "
+        f"({group}={'|'.join(names)})"
     )
 
 
@@ -159,6 +205,9 @@ def app(
             ignored = [a for a in args if a.split("=")[0].lstrip("+~") in IGNORED_BY_HYDRA]
             if ignored:  # switched off in every config: bgap names its folders itself
                 return run(prog, lambda: _refuse_ignored(ignored[0]), on_interrupt)
+            removed = [a for a in args if a.startswith("~") and _is_group(a[1:].split("=")[0])]
+            if removed:  # the schema's default would stand in for the preset, unsaid
+                return run(prog, lambda: _refuse_removed(removed[0]), on_interrupt)
             if args in (["--help"], ["-h"]) and (text := _help_text(config_name)) is not None:
                 print(text)
                 raise SystemExit(0)

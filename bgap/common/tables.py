@@ -153,6 +153,8 @@ def load_trajectories(
     df = df.sort_values(["episode", "vehicle_id", "frame"], kind="stable").reset_index(drop=True)
     if "vx" not in df.columns or "vy" not in df.columns:
         df["vx"], df["vy"] = finite_difference_velocity(df)
+    else:
+        _refuse_inconsistent_velocity(df)
     keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
     keep += [c for c in ("label", *extra) if c in df.columns]
     return df[keep]
@@ -181,6 +183,40 @@ def _refuse_own_clocks(df: pd.DataFrame) -> None:
             f"{spread * step:.3g} s apart, so no two share a time; "
             "resample every vehicle to common times (e.g. interpolate at t = k * step) or "
             "give a frame column"
+        )
+
+
+VELOCITY_RATIO = (0.5, 2.0)
+"""The table's typical ``|vx|`` over its positions' typical rate of change (medians over the
+rows where a vehicle moves faster than 1 m/s) must lie within this range: wide enough for
+sensor noise and smoothing (highD, NGSIM, SUMO's FCD and bgap's own tables lie within 2%),
+narrow enough to catch km/h (3.6), feet per second read as metres (3.3) and broken values."""
+
+
+def _refuse_inconsistent_velocity(df: pd.DataFrame) -> None:
+    """Refuse a table whose ``vx`` does not describe its positions' motion: another unit, a
+    flipped sign, or a clock that runs backwards (positions then move against ``vx``)."""
+    fd, _ = finite_difference_velocity(df)
+    vx = df["vx"].to_numpy()
+    moving = np.abs(fd) > 1.0
+    if moving.sum() < 10:
+        return  # parked or too short to tell
+    if np.median(np.sign(vx[moving]) * np.sign(fd[moving])) < 0:
+        raise TrajectoryError(
+            "vx points against the motion of x (the positions move the other way): the clock "
+            "may run backwards or vx has the wrong sign; fix the time column or negate vx"
+        )
+    ratio = float(np.median(np.abs(vx[moving])) / np.median(np.abs(fd[moving])))
+    low, high = VELOCITY_RATIO
+    if not low <= ratio <= high:
+        hint = (
+            "vx looks like km/h: divide it by 3.6"
+            if 3.0 <= ratio <= 4.2
+            else ("give vx in m/s, or drop vx and vy to have them computed from the positions")
+        )
+        raise TrajectoryError(
+            f"vx is {ratio:.3g} x the speed its positions change at (x in metres, time in "
+            f"seconds; allowed {low:g}-{high:g} x): {hint}"
         )
 
 

@@ -21,7 +21,13 @@ from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
 from bgap.envs.replay import ReplayScene, log_contact
 from bgap.traffic.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
 from bgap.traffic.replay import load_replay
-from bgap.traffic.scenario import REWARD_TERMS, check_config, contact_dx, default_config
+from bgap.traffic.scenario import (
+    REWARD_TERMS,
+    check_config,
+    contact_dx,
+    default_config,
+    merged_config,
+)
 
 FrameListener = Callable[["BehaviorHighwayEnv"], None]
 
@@ -61,7 +67,8 @@ class BehaviorHighwayEnv(HighwayEnv):
 
     # ---------------------------------------------------------------- configuration
     def configure(self, config: dict | None) -> None:
-        super().configure(config)
+        # nested dicts merged all the way down, unknown keys refused (bgap.traffic.scenario)
+        self.config = merged_config(self.config, config)
         check_config(self.config)
         # highway-env reads the perception distance from this class constant at observe time.
         self.PERCEPTION_DISTANCE = float(self.config["perception_radius"])

@@ -17,7 +17,7 @@ import json
 import tempfile
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from functools import partial
 from multiprocessing import get_context
 from pathlib import Path
@@ -41,6 +41,9 @@ from bgap.common.presets import CONF_DIR
 from bgap.common.runs import (
     CONFIG,
     MODEL,
+    VOLATILE,
+    as_before,
+    digest,
     exclusive,
     model_file,
     run_folders,
@@ -129,11 +132,15 @@ def _evaluate_chunk(
     return [{**key, **row} for row in episodes.to_dict(orient="records")]
 
 
-def _check_densities(policies: dict[str, Any], cells: list[Cell], cfg: ExperimentConfig) -> None:
-    """A model sees a fixed number of vehicles: each must have a cell of its density."""
+def _check_densities(
+    policies: dict[str, Any], cells: list[Cell], cfg: ExperimentConfig
+) -> dict[str, int | None]:
+    """A model sees a fixed number of vehicles: each must have a cell of its density.
+    Returns the observation rows each policy needs (None: any)."""
     rows = {c.density: cell_env_config(cfg, c)["observation"]["vehicles_count"] for c in cells}
+    needed = {}
     for name, spec in policies.items():
-        needs = as_policy(spec)[1]
+        needs = needed[name] = as_policy(spec)[1]
         if needs is not None and needs not in rows.values():
             raise ConfigError(
                 f"policy {name} observes {needs} vehicles (density "
@@ -141,6 +148,27 @@ def _check_densities(policies: dict[str, Any], cells: list[Cell], cfg: Experimen
                 f"{sorted(set(rows.values()))}; evaluate it at its own density (env=... or "
                 "grid.densities=[...])"
             )
+    return needed
+
+
+def _own_density(needed: dict[str, int | None], cells: list[Cell], configs: list[dict]) -> set:
+    """The (policy, cell index) pairs a model cannot play (another density's cells), each
+    model's skip said in one line: it plays only the cells of its own density."""
+    skipped = set()
+    for name, needs in needed.items():
+        other = [
+            k
+            for k, c in enumerate(configs)
+            if needs not in (None, c["observation"]["vehicles_count"])
+        ]
+        if other:
+            skipped.update((name, k) for k in other)
+            densities = sorted({cells[k].density for k in other})
+            print(
+                f"{name} plays only the cells of its own density ({_density_of(needs)}): "
+                f"{len(other)} cells of {', '.join(densities)} skipped"
+            )
+    return skipped
 
 
 def _shippable(spec: Any) -> Any:
@@ -223,11 +251,14 @@ def evaluate(
         # per cell and chunk (an SB3 load builds the networks again: ~0.3 s, 1,200 times in
         # the paper's grid)
         policies = {name: _loaded(spec) for name, spec in policies.items()}
-    _check_densities(policies, cells, cfg)
+    needed = _check_densities(policies, cells, cfg)
+    configs = [cell_env_config(cfg, cell) for cell in cells]
+    skipped = _own_density(needed, cells, configs)
     jobs = [
-        (name, spec, cell, cell_env_config(cfg, cell), seeds[i : i + chunk], cfg.backend)
-        for cell in cells
+        (name, spec, cell, configs[k], seeds[i : i + chunk], cfg.backend)
+        for k, cell in enumerate(cells)
         for name, spec in policies.items()
+        if (name, k) not in skipped  # the progress bar counts the episodes played
         for i in range(0, episodes, chunk)
     ]
     with connected(cfg.cluster):  # an unreachable cluster fails here, before any output
@@ -515,6 +546,13 @@ def run_records(model: Path) -> dict[str, Any]:
     return row
 
 
+def default_out(cfg: ExperimentConfig) -> Path:
+    """``<root>/results/evaluate-<grid>-<hash of the settings>``: evaluations of other models
+    or settings never share (and so never refuse) a folder."""
+    settings = as_before({k: v for k, v in asdict(cfg).items() if k not in VOLATILE})
+    return Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}-{digest(settings)}"
+
+
 @app("evaluate", "bgap.evaluate", SCHEMAS, "no results were written; rerun the command")
 def main(dcfg: DictConfig) -> None:
 
@@ -524,7 +562,7 @@ def main(dcfg: DictConfig) -> None:
 
 
 def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
-    out = Path(cfg.out or Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}")
+    out = Path(cfg.out or default_out(cfg))
     with exclusive(out):  # a second evaluation into the same folder is refused
         save_run_metadata(out, dcfg)
         specs = policy_specs(cfg)

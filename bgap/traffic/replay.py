@@ -154,7 +154,12 @@ class Replay:
         self.lane_ranks, y = _lanes(df)
         self.lanes = len(self.lane_ranks)
         df = df.assign(y=y, x=df.x - min(0.0, float(df.x.min())))
-        self.scenes = [self._scene(int(k), g) for k, g in df.groupby("episode", sort=True)]
+        # scenes keep their integer ids; scenes named by strings (a SUMO table's
+        # "dense_mix50") are numbered by their sorted order, the number traffic.scene takes
+        self.scenes = [
+            self._scene(int(k) if isinstance(k, (int, np.integer)) else i, g)
+            for i, (k, g) in enumerate(df.groupby("episode", sort=True))
+        ]
         self.candidates = [
             (s, v)
             for s, scene in enumerate(self.scenes)

@@ -11,6 +11,8 @@ schema defaults and Table I's drivers) and the checks both backends run on it
 
 from __future__ import annotations
 
+import copy
+import difflib
 import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Protocol
@@ -54,8 +56,12 @@ class EnvConfig:
         check(self.lanes_count >= 1, "env.lanes_count", self.lanes_count, "must be >= 1")
         speeds = self.ego_speeds
         increasing = all(a < b for a, b in zip(speeds, speeds[1:], strict=False))
-        check(len(speeds) >= 1 and speeds[0] > 0 and increasing, "env.ego_speeds", speeds,
-              "must be positive target speeds in increasing order")  # fmt: skip
+        check(
+            len(speeds) >= 1 and speeds[0] > 0 and increasing,
+            "env.ego_speeds",
+            speeds,
+            "must be positive target speeds in increasing order",
+        )
         check(self.duration > 0, "env.duration", self.duration, "must be positive")
         check(self.policy_frequency >= 1, "env.policy_frequency", self.policy_frequency, ">= 1")
         check(
@@ -207,16 +213,62 @@ def default_config() -> dict[str, Any]:
 
 
 def full_config(config: dict[str, Any]) -> dict[str, Any]:
-    """:func:`default_config` updated with ``config`` (nested dicts merged one level deep, as
-    highway-env's ``configure`` does), checked with :func:`check_config`."""
-    full = default_config()
-    for key, value in config.items():
-        if isinstance(value, dict) and isinstance(full.get(key), dict):
-            full[key] = {**full[key], **value}
-        else:
-            full[key] = value
+    """:func:`default_config` updated with ``config`` (:func:`merged_config`), checked with
+    :func:`check_config`."""
+    full = merged_config(default_config(), config)
     check_config(full)
     return full
+
+
+OPTIONAL_KEYS = ("traffic",)
+"""Keys a config may add to the defaults: replayed traffic (:func:`env_config`)."""
+
+
+def merged_config(base: dict[str, Any], config: dict[str, Any] | None) -> dict[str, Any]:
+    """``base`` updated with ``config``, nested dicts merged all the way down (a user's
+    ``{"observation": {"vehicles_count": 40}}`` keeps the observation's type and features;
+    highway-env's own update would drop them). A nested dict of another ``type`` replaces
+    the default's. A key neither highway-env nor bgap knows is refused, naming the nearest
+    known key, and so is a partial ``behavior`` (both classes, every parameter)."""
+    config = dict(config or {})
+    unknown = sorted(set(config) - set(base) - set(OPTIONAL_KEYS))
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], list(base), n=1)
+        hint = f"did you mean {close[0]!r}?" if close else "see the environment page's keys"
+        raise ConfigError(f"{unknown[0]!r} is not a setting of the environment ({hint})")
+    if isinstance(config.get("behavior"), dict):
+        _check_behavior(config["behavior"])
+    merged = copy.deepcopy(base)
+    for key, value in config.items():
+        merged[key] = _merge(merged.get(key), value)
+    return merged
+
+
+def _merge(base: Any, value: Any) -> Any:
+    if not isinstance(base, dict) or not isinstance(value, dict):
+        return copy.deepcopy(value)
+    if "type" in value and value["type"] != base.get("type"):
+        return copy.deepcopy(value)  # another observation or action type: its own keys
+    out = dict(base)
+    for key, item in value.items():
+        out[key] = _merge(base.get(key), item)
+    return out
+
+
+def _check_behavior(behavior: dict[str, Any]) -> None:
+    """A ``behavior`` dict names both classes with every parameter (one left out would
+    silently keep another preset's values)."""
+    fields = set(asdict(paper_behavior().conservative))
+    for cls in CLASSES:
+        given = behavior.get(cls)
+        check(
+            isinstance(given, dict),
+            "behavior",
+            sorted(behavior),
+            f"is partial: give both classes {list(CLASSES)}, each with {sorted(fields)}",
+        )
+        missing = sorted(fields - set(given))
+        check(not missing, f"behavior.{cls}", sorted(given), f"is partial: it lacks {missing}")
 
 
 def check_config(config: dict[str, Any]) -> None:
@@ -243,6 +295,22 @@ def check_config(config: dict[str, Any]) -> None:
     check(not unknown, "behavior", sorted(unknown), f"unknown classes; use {list(CLASSES)}")
     n = config["vehicles_count"]
     check(isinstance(n, int) and n >= 0, "vehicles_count", n, "must be an integer >= 0")
+    lanes = config.get("lanes_count", 1)
+    check(isinstance(lanes, int) and lanes >= 1, "lanes_count", lanes, "must be an integer >= 1")
+    duration = config.get("duration", 1.0)
+    check(
+        isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0,
+        "duration",
+        duration,
+        "must be a positive number of seconds",
+    )
+    speeds = (config.get("action") or {}).get("target_speeds", [1.0])
+    check(
+        len(speeds) >= 1 and all(math.isfinite(v) and v > 0 for v in speeds),
+        "action.target_speeds",
+        speeds,
+        "must be one or more positive speeds [m/s] (env.ego_speeds)",
+    )
     sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
     check(
         pol >= 1 and sim % pol == 0,

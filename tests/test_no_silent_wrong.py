@@ -1,0 +1,188 @@
+"""No silent wrong result: settings a command would drop are refused, trajectory tables are
+read whatever their id types, and velocities that do not describe the positions are refused.
+
+Each refusal is one line and exit status 2; where the right answer is to run, the result is
+checked against the same table with integer ids (an independent computation of the same
+thing)."""
+
+from __future__ import annotations
+
+import importlib
+import re
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bgap.common.errors import TrajectoryError
+
+
+@pytest.fixture(scope="module")
+def table(tmp_path_factory) -> pd.DataFrame:
+    """bgap's own recorded traffic (two 30-second sparse scenes), the ego left out."""
+    from bgap.common.config import validate
+    from bgap.datasets.simulate import simulate
+    from tests.configs import compose
+
+    cfg = validate(compose("simulate", ["backend=vector", "env.duration=30", "episodes=2"]))
+    t = simulate(cfg, progress=False)
+    return t[~t.is_ego].reset_index(drop=True)
+
+
+def _as_strings(t: pd.DataFrame) -> pd.DataFrame:
+    s = t.copy()
+    s["episode"] = "scene_" + s.episode.astype(str)
+    s["vehicle_id"] = "v" + s.vehicle_id.astype(str)
+    return s
+
+
+def _command(module: str, args: list[str], monkeypatch, capsys) -> tuple[int, str]:
+    main = importlib.import_module(module).main
+    monkeypatch.setattr(sys, "argv", [module, *args])
+    try:
+        main()
+        status = 0
+    except SystemExit as stop:
+        status = stop.code
+    return status, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "arg,message",
+    [
+        ("+unknown=1", r"\+unknown=1 is not a setting of this command \(drop it\)"),
+        ("+profile.eval_epsiodes=3", "did you mean profile.eval_episodes"),
+        ("~mix", "~mix removes a setting this command needs"),
+        ("~env", r"~env removes the env preset, which this command needs: choose one instead"),
+    ],
+)
+def test_settings_a_command_would_drop_or_default_are_refused(
+    arg, message, tmp_path, monkeypatch, capsys
+):
+    import re
+
+    monkeypatch.chdir(tmp_path)
+    args = ["baselines=[idle]", "backend=vector", "profile.eval_episodes=2", "out=o", arg]
+    status, err = _command("bgap.evaluate", args, monkeypatch, capsys)
+    assert status == 2 and err.count("\n") == 1 and re.search(message, err), err
+    assert not (tmp_path / "o").exists()  # refused before anything was written
+
+
+def test_replay_with_string_ids_plays_the_episodes_of_the_same_table_with_integer_ids(
+    table, tmp_path
+):
+    from bgap.common.config import validate
+    from bgap.experiments.evaluate import evaluate
+    from tests.configs import compose
+
+    played = []
+    for name, t in (("int", table), ("str", _as_strings(table))):
+        t.to_parquet(tmp_path / f"{name}.parquet")
+        cfg = validate(
+            compose(
+                "evaluate",
+                [
+                    "traffic=replay",
+                    f"traffic.table={tmp_path}/{name}.parquet",
+                    "backend=vector",
+                    "traffic.min_duration=10",
+                    "env.duration=10",
+                ],
+            )
+        )
+        played.append(evaluate(cfg, {"rule": "rule"}, episodes=4, progress=False))
+    pd.testing.assert_frame_equal(played[0], played[1])
+    assert len(played[0]) == 4
+
+
+def test_calibration_statistics_read_string_ids_as_integer_ids(table):
+    from bgap.calibration.kinematics import class_samples
+
+    a, b = class_samples(table), class_samples(_as_strings(table))
+    assert a.keys() == b.keys() and a
+    for cls in a:
+        for stat in a[cls]:
+            np.testing.assert_allclose(np.sort(a[cls][stat]), np.sort(b[cls][stat]))
+
+
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        (lambda t: t.assign(vx=t.vx * 3.6), "vx looks like km/h: divide it by 3.6"),
+        (lambda t: t.assign(vx=1e9), "drop vx and vy to have them computed"),
+        (
+            lambda t: t.assign(time=t.time.max() - t.time, frame=t.frame.max() - t.frame),
+            "the clock may run backwards",
+        ),
+    ],
+    ids=["km/h", "1e9", "reversed clock"],
+)
+def test_velocities_that_do_not_describe_the_positions_are_refused(table, change, message):
+    from bgap.common.tables import load_trajectories
+
+    load_trajectories(table)  # the table as recorded reads
+    with pytest.raises(TrajectoryError, match=message) as err:
+        load_trajectories(change(table))
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "config,message",
+    [
+        (
+            {"vehicle_count": 40},
+            "'vehicle_count' is not a setting of the environment (did you mean 'vehicles_count'?)",
+        ),
+        ({"duration": float("nan")}, "duration=nan is invalid"),
+        ({"duration": -5}, "duration=-5 is invalid"),
+        ({"action": {"target_speeds": []}}, "action.target_speeds=[] is invalid"),
+        ({"lanes_count": 0}, "lanes_count=0 is invalid"),
+        ({"behavior": {"aggressive": {"time_gap": 1.0}}}, "is partial: give both classes"),
+    ],
+)
+def test_gym_make_refuses_what_it_would_ignore_or_break_on(config, message):
+    import gymnasium as gym
+
+    from bgap import ENV_ID
+    from bgap.common.errors import ConfigError
+
+    with pytest.raises(ConfigError) as err:
+        gym.make(ENV_ID, config=config)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_gym_make_merges_nested_settings_as_the_docs_example_needs():
+    """The environment page's example: the observation keeps its type and features and
+    reads 40 vehicles, on highway-env's backend and the vector one alike."""
+    import gymnasium as gym
+
+    from bgap import ENV_ID
+    from bgap.sim.vector import VectorHighway
+
+    config = {"vehicles_count": 40, "observation": {"vehicles_count": 40}}
+    env = gym.make(ENV_ID, config=config)
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (40, 5)
+    assert env.unwrapped.config["observation"]["type"] == "Kinematics"
+    assert VectorHighway(config, 1).observation_space.shape[-2:] == (40, 5)
+
+
+@pytest.mark.parametrize(
+    "source,message",
+    [
+        (lambda t: 42, "takes a DataFrame or a .csv/.parquet path, not int"),
+        (lambda t: t[t.frame < 2], "shorter than CMetric's window (3 s)"),
+        (
+            lambda t: t.assign(x=t.x / 1000, y=t.y / 1000, vx=t.vx / 1000, vy=t.vy / 1000),
+            "outside road traffic's 0.3-80 m/s",
+        ),
+    ],
+    ids=["not a table", "two frames", "kilometres"],
+)
+def test_cmetric_refuses_what_it_cannot_score_in_one_line(table, source, message):
+    from bgap.cmetric import score_trajectories
+
+    with pytest.raises(TrajectoryError, match=re.escape(message)) as err:
+        score_trajectories(source(table))
+    assert "\n" not in str(err.value)
