@@ -170,3 +170,14 @@ def test_the_lock_file_pins_every_dependency_within_pyproject_and_is_what_is_ins
         except PackageNotFoundError:
             continue
         assert installed == Version(pins[name]), (name, str(installed), pins[name])
+
+
+def test_ci_runs_the_readmes_test_command_and_both_set_up_commands_install_from_the_lock():
+    import re
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    setup = readme.split("## Set up")[1].split("\n## ")[0]
+    commands = re.findall(r"```bash\n(.*?)\n```", setup, re.S)
+    assert len(commands) == 2, commands
+    assert all("-c requirements/lock.txt" in c for c in commands), commands
+    assert commands[1] in (ROOT / ".ci/run").read_text(encoding="utf-8")

@@ -7,15 +7,14 @@ thing)."""
 
 from __future__ import annotations
 
-import importlib
 import re
-import sys
 
 import numpy as np
 import pandas as pd
 import pytest
 
 from bgap.common.errors import TrajectoryError
+from tests.commands import command
 
 
 @pytest.fixture(scope="module")
@@ -37,17 +36,6 @@ def _as_strings(t: pd.DataFrame) -> pd.DataFrame:
     return s
 
 
-def _command(module: str, args: list[str], monkeypatch, capsys) -> tuple[int, str]:
-    main = importlib.import_module(module).main
-    monkeypatch.setattr(sys, "argv", [module, *args])
-    try:
-        main()
-        status = 0
-    except SystemExit as stop:
-        status = stop.code
-    return status, capsys.readouterr().err
-
-
 @pytest.mark.parametrize(
     "arg,message",
     [
@@ -64,7 +52,7 @@ def test_settings_a_command_would_drop_or_default_are_refused(
 
     monkeypatch.chdir(tmp_path)
     args = ["baselines=[idle]", "backend=vector", "profile.eval_episodes=2", "out=o", arg]
-    status, err = _command("bgap.evaluate", args, monkeypatch, capsys)
+    status, _, err = command("bgap.evaluate", args, monkeypatch, capsys)
     assert status == 2 and err.count("\n") == 1 and re.search(message, err), err
     assert not (tmp_path / "o").exists()  # refused before anything was written
 

@@ -8,7 +8,6 @@ reference each test compares against is the run folder's own model file.
 
 from __future__ import annotations
 
-import importlib
 import re
 import sys
 import zipfile
@@ -20,6 +19,7 @@ import pytest
 
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
+from tests.commands import command
 from tests.configs import compose
 
 FAMILIES = ("dqn", "qrdqn", "ppo")
@@ -179,31 +179,19 @@ def test_a_damaged_zoo_file_is_refused_in_one_line(zoo_dir, tmp_path, monkeypatc
     assert "\n" not in str(err.value)
 
 
-def _command(module: str, args: list[str], monkeypatch, capsys) -> tuple[int, str, str]:
-    main = importlib.import_module(module).main
-    monkeypatch.setattr(sys, "argv", [module, *args])
-    try:
-        main()
-        status = 0
-    except SystemExit as stop:
-        status = stop.code
-    out = capsys.readouterr()
-    return status, out.out, out.err
-
-
 def test_evaluating_a_zoo_name_plays_the_same_episodes_as_its_run_folder(
     runs, tmp_path, monkeypatch, capsys
 ):
     """Row for row, every column but the policy's name; models.csv says the same of both."""
     common = ["baselines=[]", "backend=vector", "profile.eval_episodes=6", "mix=0.4"]
-    status, _, err = _command(
+    status, _, err = command(
         "bgap.evaluate",
         ["models=[zoo:dqn/sparse/*/*]", *common, f"out={tmp_path}/zoo"],
         monkeypatch,
         capsys,
     )
     assert status == 0, err
-    status, _, err = _command(
+    status, _, err = command(
         "bgap.evaluate",
         [f"models=[{runs['dqn'].parent.parent}]", *common, f"out={tmp_path}/run"],
         monkeypatch,
@@ -251,6 +239,11 @@ def test_evaluating_a_zoo_name_plays_the_same_episodes_as_its_run_folder(
             "reads 5 observed vehicles",
         ),
         (
+            "bgap.watch",
+            ["policy=rule", "traffic=replay", "traffic.table=missing.parquet"],
+            "replayed traffic cannot be watched yet",
+        ),
+        (
             "bgap.simulate",
             ["traffic=replay", "traffic.table=t.parquet", "backend=highway"],
             "replayed traffic runs on the vector backend only",
@@ -263,7 +256,7 @@ def test_refusals_are_one_line_and_status_2(
     monkeypatch.chdir(tmp_path)
     args = [a.replace("{zoo}", str(zoo_dir)) for a in args]
     pd.DataFrame({"x": [0.0]}).to_parquet(tmp_path / "t.parquet")
-    status, _, err = _command(module, args, monkeypatch, capsys)
+    status, _, err = command(module, args, monkeypatch, capsys)
     assert status == 2, err
     assert err.count("\n") == 1 and "Traceback" not in err, err
     assert message in err or re.search(message, err), err
@@ -277,11 +270,11 @@ def test_two_models_of_one_name_or_a_baselines_name_are_refused(
     for parent in ("a", "b"):
         shutil.copytree(runs["dqn"], tmp_path / parent / "rule")
     monkeypatch.chdir(tmp_path)
-    status, _, err = _command(
+    status, _, err = command(
         "bgap.evaluate", ["models=[a/rule,b/rule]", "baselines=[]"], monkeypatch, capsys
     )
     assert status == 2 and "gives a policy named 'rule', as does" in err, err
-    status, _, err = _command(
+    status, _, err = command(
         "bgap.evaluate", ["models=[a/rule]", "baselines=[rule]"], monkeypatch, capsys
     )
     assert status == 2 and "as does the baseline" in err, err
@@ -298,7 +291,7 @@ def test_watch_writes_one_picture_per_simulation_frame_and_reports_the_episode(
 
     monkeypatch.chdir(tmp_path)
     args = ["policy=zoo:dqn/sparse/behavior_rich/s0", "env.duration=6", "out=w"]
-    status, out, err = _command("bgap.watch", args, monkeypatch, capsys)
+    status, out, err = command("bgap.watch", args, monkeypatch, capsys)
     assert status == 0, err
     episodes = pd.read_csv(tmp_path / "w/episodes.csv")
     steps = int(episodes.steps.iloc[0])
@@ -318,7 +311,7 @@ def test_watch_writes_a_gif_where_imageio_ffmpeg_is_missing(tmp_path, monkeypatc
     monkeypatch.chdir(tmp_path)
     monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import fails
     args = ["policy=rule", "env.duration=2", "out=g"]
-    status, out, err = _command("bgap.watch", args, monkeypatch, capsys)
+    status, out, err = command("bgap.watch", args, monkeypatch, capsys)
     assert status == 0, err
     assert "writing GIF" in out
     assert len(imageio.mimread(tmp_path / "g/episode0.gif")) == 1 + 15 * 2
@@ -396,7 +389,7 @@ def test_a_model_on_the_paper_grid_says_which_cells_it_skips_and_folders_never_c
     common = ["baselines=[idle]", "grid=paper", "backend=vector", "profile.eval_episodes=1"]
     outs = []
     for name in ("dqn", "ppo"):
-        status, out, err = _command(
+        status, out, err = command(
             "bgap.evaluate", [f"models=[zoo:{name}/sparse/*/*]", *common], monkeypatch, capsys
         )
         assert status == 0, err

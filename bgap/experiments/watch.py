@@ -6,12 +6,13 @@
 
 By default the policy plays in the traffic it was trained in (its zoo card, or its run
 folder's ``config.yaml``: density, behaviour, reward, traffic); any of them can be set on the
-command line (``behavior=stock``, ``traffic=replay traffic.table=...``, ``env=dense``). Each
+command line (``behavior=stock``, ``env=dense``, ``mix=0.8``; replayed traffic is refused:
+the vector backend records no frames of it). Each
 episode is written as ``episode<k>.mp4`` (H.264 through imageio-ffmpeg, 15 pictures per
 second of simulated time: every simulation frame) or, where that writer is missing,
 ``episode<k>.gif``; ``episodes.csv`` holds each episode's outcome, which is also printed.
-Pictures come from the recorded frames (:mod:`bgap.sim.film`), so both backends and replayed
-traffic are drawn alike.
+Pictures come from the recorded frames (:mod:`bgap.sim.film`), so both backends are drawn
+alike.
 """
 
 from __future__ import annotations
@@ -59,6 +60,14 @@ class WatchConfig(BaseConfig):
     backend: str = "vector"
 
     def __post_init__(self) -> None:
+        # before the base checks, which read a replay's table: refused either way
+        check(
+            self.traffic.source != "replay",
+            "traffic",
+            self.traffic.name,
+            "replayed traffic cannot be watched yet (the vector backend, which alone replays, "
+            "records no frames of it): watch the policy in simulated or stock traffic",
+        )
         super().__post_init__()
         check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
         check(self.format in FORMATS, "format", self.format, f"use one of {FORMATS}")
