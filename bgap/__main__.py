@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import runpy
 import sys
+from difflib import get_close_matches
 
 COMMANDS = {
     "simulate": ("bgap.simulate", "record behaviour-rich traffic as a trajectory table"),
@@ -44,7 +45,9 @@ def main(argv: list[str] | None = None) -> None:
         return
     name = args[0].replace("-", ".") if args[0] not in COMMANDS else args[0]
     if name not in COMMANDS:
-        print(f"bgap: unknown command {args[0]!r}\n\n{usage()}", file=sys.stderr)
+        close = get_close_matches(args[0], list(COMMANDS), n=1)
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        print(f"bgap: unknown command {args[0]!r}; {hint}`bgap` lists them", file=sys.stderr)
         raise SystemExit(2)
     module = COMMANDS[name][0]
     sys.argv = [f"bgap {name}", *args[1:]]
