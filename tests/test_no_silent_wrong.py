@@ -12,6 +12,8 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from bgap.common.errors import TrajectoryError
 from tests.commands import command
@@ -174,3 +176,41 @@ def test_cmetric_refuses_what_it_cannot_score_in_one_line(table, source, message
     with pytest.raises(TrajectoryError, match=re.escape(message)) as err:
         score_trajectories(source(table))
     assert "\n" not in str(err.value)
+
+
+SCHEMA_KEYS = ["mix", "radius", "seed", "env.duration", "profile.eval_episodes", "grid", "env"]
+
+
+@settings(max_examples=60, derandomize=True, deadline=None, database=None)
+@given(
+    st.one_of(
+        st.from_regex(r"\+[a-z]{1,8}(\.[a-z_]{1,10})?=[0-9]", fullmatch=True),
+        st.sampled_from(SCHEMA_KEYS).map(lambda k: f"~{k}"),
+    )
+)
+def test_generated_plus_and_tilde_overrides_are_refused_or_honoured(override):
+    """``+key`` with a key the schema lacks, and ``~key`` of a setting or preset, never run
+    with the setting silently dropped or defaulted: refused in one line, or (a ``+key`` the
+    schema has) honoured in the config the command uses."""
+    from omegaconf import OmegaConf
+
+    from bgap.common import config
+    from bgap.common.errors import ConfigError
+    from bgap.experiments.config import SCHEMAS
+
+    key = override.lstrip("+~").split("=")[0]
+    if override.startswith("~") and config._is_group(key):
+        with pytest.raises(ConfigError, match="preset, which this command needs"):
+            config._refuse_removed(override)
+        return
+    try:
+        composed = config.compose("evaluate", [override], SCHEMAS)
+    except Exception:  # noqa: BLE001 - Hydra refuses it itself (the app prints one line)
+        return
+    try:
+        used = config.load(composed)
+    except ConfigError as err:
+        assert "\n" not in str(err) and key.split(".")[-1] in str(err)
+        return
+    assert override.startswith("+")  # only a key the schema knows may pass
+    assert OmegaConf.select(OmegaConf.structured(used), key) is not None

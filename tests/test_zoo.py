@@ -402,3 +402,44 @@ def test_a_model_on_the_paper_grid_says_which_cells_it_skips_and_folders_never_c
     model = episodes[episodes.policy != "idle"]
     assert set(model.density) == {"sparse"} and len(model) == 21
     assert len(episodes[episodes.policy == "idle"]) == 42
+
+
+@pytest.mark.parametrize(
+    "module,config,args",
+    [
+        ("bgap.simulate", "simulate", ["episodes=1", "env.duration=2", "mix=0.3", "out=o"]),
+        (
+            "bgap.evaluate",
+            "evaluate",
+            ["baselines=[idle]", "profile.eval_episodes=1", "backend=vector", "radius=90", "out=o"],
+        ),
+        ("bgap.watch", "watch", ["policy=rule", "env.duration=2", "behavior=stock", "out=o"]),
+        ("bgap.zoo", "zoo", ["runs={runs}", "arm=dqn", "out=o"]),
+    ],
+)
+def test_the_saved_config_is_the_composed_config_the_command_used(
+    module, config, args, runs, tmp_path, monkeypatch, capsys
+):
+    """Each command's ``config.yaml`` (where it writes one) is exactly the config composed
+    from its command line: nothing dropped, defaulted or added on the way."""
+    import yaml
+    from omegaconf import OmegaConf
+
+    from bgap.common import config as plumbing
+    from bgap.datasets.config import SCHEMAS as DATASETS
+    from bgap.experiments.config import SCHEMAS as EXPERIMENTS
+    from bgap.experiments.watch import SCHEMAS as WATCH
+    from bgap.experiments.zoo import SCHEMAS as ZOO
+
+    monkeypatch.chdir(tmp_path)
+    args = [a.replace("{runs}", str(runs["dqn"])) for a in args]
+    status, _, err = command(module, args, monkeypatch, capsys)
+    assert status == 0, err
+    schemas = {"simulate": DATASETS, "evaluate": EXPERIMENTS, "watch": WATCH, "zoo": ZOO}
+    composed = plumbing.compose(config, args, schemas[config])
+    expected = OmegaConf.to_container(composed, resolve=True)
+    saved = tmp_path / "o" / "config.yaml"
+    if not saved.exists():  # bgap.zoo writes the zoo's files only: its card records the run
+        assert config == "zoo" and (tmp_path / "o/behavior_rich/s0.yaml").exists()
+        return
+    assert yaml.safe_load(saved.read_text()) == expected
