@@ -154,7 +154,8 @@ def test_the_target_density_is_matched(tmp_path):
     from bgap.traffic.scenario import env_config
     from tests.conftest import make_cfg
 
-    sparse_ish = make_cfg("env=dense", "mix=0.5", "env.duration=2", "env.vehicles_density=0.5")
+    # 4 s: longer than CMetric's 3-second window, which the observed table is scored on
+    sparse_ish = make_cfg("env=dense", "mix=0.5", "env.duration=4", "env.vehicles_density=0.5")
     table = rollout(env_config(sparse_ish), "idle", [60, 61, 62], "vector", record=True)
     path = tmp_path / "half.parquet"
     table.trajectories.to_parquet(path)

@@ -393,7 +393,12 @@ def test_rollouts_that_skip_finished_envs_play_the_same_episodes(tmp_path, monke
         recorded = rollout(config, "idle", [3, 4], "vector", record=True).trajectories
         table = tmp_path / "trajectories.parquet"
         recorded.to_parquet(table)
-        replay = ["traffic=replay", f"traffic.table={table}", "traffic.min_duration=5"]
+        replay = [
+            "traffic=replay",
+            f"traffic.table={table}",
+            "traffic.min_duration=5",
+            "backend=vector",
+        ]
         config = env_config(make_cfg("env=dense", "env.duration=12", *replay))
     seeds = list(range(24))
     skipped = rollout(config, "random", seeds, "vector", record=traffic != "replay")
