@@ -1,5 +1,6 @@
 """``bgap <command> [key=value ...]`` (or ``python -m bgap <command>``): one entry point for
-every command; ``bgap`` alone lists them. ``bgap train ...`` is ``python -m bgap.train ...``."""
+every command; ``bgap`` alone lists them, ``bgap --version`` prints the installed version.
+``bgap train ...`` is ``python -m bgap.train ...``."""
 
 from __future__ import annotations
 
@@ -29,11 +30,26 @@ COMMANDS = {
 }
 
 
+def version() -> str:
+    """The installed distribution's version (its metadata), else the package's own
+    ``bgap.__version__`` (a source tree that was never installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as installed
+
+    try:
+        return installed("bgap")
+    except PackageNotFoundError:
+        from bgap import __version__
+
+        return __version__
+
+
 def usage() -> str:
     width = max(map(len, COMMANDS))
     lines = [f"  {name:<{width}}  {about}" for name, (_, about) in COMMANDS.items()]
     return (
-        "usage: bgap <command> [key=value ...]   (--help after a command: its options)\n\n"
+        "usage: bgap <command> [key=value ...]   (--help after a command: its options)\n"
+        "       bgap --version\n\n"
         "commands:\n" + "\n".join(lines)
     )
 
@@ -42,6 +58,9 @@ def main(argv: list[str] | None = None) -> None:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help", "help"):
         print(usage())
+        return
+    if args[0] in ("-V", "--version"):
+        print(f"bgap {version()}")
         return
     name = args[0].replace("-", ".") if args[0] not in COMMANDS else args[0]
     if name not in COMMANDS:

@@ -48,7 +48,8 @@ def test_bgap_alone_lists_every_command_and_an_unknown_one_is_refused():
         [sys.executable, "-m", "bgap"], cwd=ROOT, capture_output=True, text=True, timeout=60
     )
     assert done.returncode == 0, done.stderr
-    listed = {line.split()[0] for line in done.stdout.splitlines() if line.startswith("  ")}
+    commands = done.stdout.split("commands:\n", 1)[1]
+    listed = {line.split()[0] for line in commands.splitlines() if line.startswith("  ")}
     assert listed == set(COMMANDS)
     for module, _ in COMMANDS.values():  # every command's module exists
         assert (ROOT / Path(*module.split("."))).with_suffix(".py").exists() or (
