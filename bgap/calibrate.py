@@ -1,5 +1,5 @@
-# `python -m bgap.<command>` kept for scripts and dvc.yaml; the command is its import.
-from bgap.calibration.calibrate import main
+from bgap.runner.numerics import command
 
+main = command("bgap.calibration.calibrate")
 if __name__ == "__main__":
     main()

@@ -1,5 +1,5 @@
-# `python -m bgap.<command>` kept for scripts and dvc.yaml; the command is its import.
-from bgap.experiments.recipe import main
+from bgap.runner.numerics import command
 
+main = command("bgap.experiments.recipe")
 if __name__ == "__main__":
     main()

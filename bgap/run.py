@@ -1,5 +1,5 @@
-# `python -m bgap.<command>` kept for scripts and dvc.yaml; the command is its import.
-from bgap.experiments.run import main
+from bgap.runner.numerics import command
 
+main = command("bgap.experiments.run")
 if __name__ == "__main__":
     main()

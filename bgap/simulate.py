@@ -1,5 +1,5 @@
-# `python -m bgap.<command>` kept for scripts and dvc.yaml; the command is its import.
-from bgap.datasets.simulate import main
+from bgap.runner.numerics import command
 
+main = command("bgap.datasets.simulate")
 if __name__ == "__main__":
     main()

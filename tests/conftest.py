@@ -16,6 +16,10 @@ if "PYTEST_XDIST_WORKER" in os.environ:
 for _var in ("BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE", "BGAP_COMMAND"):
     os.environ.pop(_var, None)
 
+from bgap.runner.numerics import pin  # noqa: E402
+
+pin(["pytest"])  # the kernels bgap's commands use, before torch loads: the same numbers
+
 import glob  # noqa: E402
 import shutil  # noqa: E402
 import socket  # noqa: E402

@@ -139,17 +139,17 @@ def test_sb3_trainings_side_by_side_learn_what_they_learn_alone(tmp_path, monkey
     folder's command.txt is the command that started them, not the worker process's."""
     from bgap.agents.policies import load_model
     from bgap.common.cli import ENV_COMMAND, own_command, run
-    from bgap.experiments.train import train_side_by_side
+    from bgap.experiments.train import trainings
     from bgap.experiments.training import member_configs
 
     monkeypatch.setenv(ENV_COMMAND, "")  # restored after the test: run() sets it
     dirs = {}
     for workers in (1, 2):
         overrides = ["agent=ppo", "profile=tiny", "profile.train_steps=5000", "env=sparse",
-                     "seeds=[0,1]", "backend=vector"]  # fmt: skip
+                     "seeds=[0,1]", "backend=vector", f"workers={workers}"]  # fmt: skip
         cfg = validate(compose("train", [*overrides, f"run_dir={tmp_path}/w{workers}"]))
         members = member_configs(cfg)
-        dirs[workers] = run("test", partial(train_side_by_side, members, workers), "")
+        dirs[workers] = run("test", partial(trainings, members, False), "")
     assert [d.name for d in dirs[1]] == ["sparse-behavior_rich-s0", "sparse-behavior_rich-s1"]
     assert {(d / "command.txt").read_text() for d in dirs[2]} == {own_command() + "\n"}
     for alone, side in zip(dirs[1], dirs[2], strict=True):

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import hashlib
 import importlib
+import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -311,8 +313,8 @@ def test_ctrl_c_says_what_was_kept_and_how_to_continue(tmp_path, monkeypatch, ca
     original = SB3Monitor._on_step
 
     def ctrl_c(self):
-        if self.num_timesteps >= 100:
-            self._request_stop(2, None)
+        if self.num_timesteps >= 100 and not self.ctrl_c.requested:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C, once
         return original(self)
 
     monkeypatch.setattr(SB3Monitor, "_on_step", ctrl_c)

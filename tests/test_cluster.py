@@ -57,7 +57,7 @@ def test_trainings_as_ray_tasks_learn_what_they_learn_here(tmp_path):
     import torch as th
 
     from bgap.agents.policies import load_model
-    from bgap.experiments.train import train_side_by_side
+    from bgap.experiments.train import trainings
     from bgap.experiments.training import member_configs
 
     dirs = {}
@@ -65,7 +65,7 @@ def test_trainings_as_ray_tasks_learn_what_they_learn_here(tmp_path):
         where = "ray" if extra else "here"
         overrides = ["agent=ppo", "profile=tiny", "env=sparse", "seeds=[0,1]", "backend=vector",
                      f"run_dir={tmp_path}/{where}", *extra]  # fmt: skip
-        dirs[where] = train_side_by_side(member_configs(validate(compose("train", overrides))), 1)
+        dirs[where] = trainings(member_configs(validate(compose("train", overrides))), False)
     for here, there in zip(dirs["here"], dirs["ray"], strict=True):
         assert here.name == there.name and (there / "config.yaml").exists()
         a, b = (load_model(d).policy.state_dict() for d in (here, there))
@@ -127,7 +127,7 @@ def test_a_training_whose_node_dies_resumes_on_another_and_learns_the_same(tmp_p
     import torch as th
 
     from bgap.agents.policies import load_model
-    from bgap.experiments.train import train, train_side_by_side
+    from bgap.experiments.train import train, trainings
     from bgap.experiments.training import member_configs
 
     base = ["profile=tiny", "profile.train_steps=3000", "profile.checkpoint_every=300",
@@ -138,7 +138,7 @@ def test_a_training_whose_node_dies_resumes_on_another_and_learns_the_same(tmp_p
     overrides = [*base, f"run_dir={tmp_path}/cut", f"cluster.address={nodes.address}",
                  f"cluster.storage={storage}"]  # fmt: skip
     cfgs = member_configs(validate(compose("train", overrides)))
-    join = _in_thread(train_side_by_side, cfgs, 1)
+    join = _in_thread(trainings, cfgs, False)
     _wait_for(lambda: any(storage.glob("*/checkpoints/state.pkl")), what="a checkpoint")
     assert not any(storage.glob("*/model.zip")), "finished before the kill: train longer"
     nodes.add_node(num_cpus=1)
@@ -296,7 +296,7 @@ def test_a_batched_stage_through_a_two_node_cluster_learns_what_it_learns_here(t
     import torch as th
 
     from bgap.agents.policies import load_model
-    from bgap.experiments.batched import train_batched
+    from bgap.experiments.train import trainings
     from bgap.experiments.training import member_configs
 
     nodes.add_node(num_cpus=1)
@@ -307,7 +307,7 @@ def test_a_batched_stage_through_a_two_node_cluster_learns_what_it_learns_here(t
         overrides = ["learner=batched", "profile=tiny", "env=sparse", "seeds=[0,1]",
                      "policies=[behavior_rich,default]", f"run_dir={tmp_path}/{where}",
                      *extra]  # fmt: skip
-        dirs[where] = train_batched(member_configs(validate(compose("train", overrides))), False)
+        dirs[where] = trainings(member_configs(validate(compose("train", overrides))), False)
     assert [d.name for d in dirs["here"]] == [d.name for d in dirs["ray"]]
     for here, there in zip(dirs["here"], dirs["ray"], strict=True):
         assert (there / "config.yaml").exists() and (there / "model.zip").exists()

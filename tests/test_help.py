@@ -170,19 +170,10 @@ def _same(value: str, actual: Any) -> bool:
     return stated == actual
 
 
-HELP_HELD_BACK = ("bgap.recipe",)
-"""Commands whose corrected help waits for a relock: bgap/conf/recipe.yaml is a code
-dependency of the recipe stages, so its text changes with the next relock of them."""
-
-
 @pytest.mark.filterwarnings("ignore:.*found in sys.modules after import of package")
 @pytest.mark.parametrize(
     "command",
-    [
-        c if c == "bgap.run" else pytest.param(c, marks=pytest.mark.slow)
-        for c in HYDRA_COMMANDS
-        if c not in HELP_HELD_BACK
-    ],
+    [c if c == "bgap.run" else pytest.param(c, marks=pytest.mark.slow) for c in HYDRA_COMMANDS],
 )
 def test_help_states_the_composed_defaults(command, capsys, monkeypatch, tmp_path):
     """Each default the help text states (``mix=0.5``, ``seeds=[]``, ``resume=false``) is the

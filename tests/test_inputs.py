@@ -142,9 +142,9 @@ def test_an_interrupted_commands_metadata_does_not_block_a_rerun(tmp_path, monke
 
 @contextmanager
 def _held_by_another_process(lock: str, target: str, cwd: Path) -> Iterator[int]:
-    """``bgap.common.runs.<lock>(target)`` held by a child process; yields its pid."""
+    """``bgap.runner.locks.<lock>(target)`` held by a child process; yields its pid."""
     holder = subprocess.Popen(
-        [sys.executable, "-c", f"import time; from bgap.common.runs import {lock}\n"
+        [sys.executable, "-c", f"import time; from bgap.runner.locks import {lock}\n"
          f"with {lock}({target!r}):\n    print('held', flush=True); time.sleep(60)"],
         cwd=cwd, stdout=subprocess.PIPE, text=True, env=ENV,
     )  # fmt: skip
@@ -181,7 +181,8 @@ def test_a_scores_file_being_written_is_refused_naming_the_process(tmp_path, mon
 
 def test_the_lock_is_released_and_leaves_no_file_nor_an_empty_folder_it_made(tmp_path):
     from bgap.common.errors import ConfigError
-    from bgap.common.runs import LOCK, exclusive
+    from bgap.common.runs import LOCK
+    from bgap.runner.locks import exclusive
 
     (tmp_path / "out").mkdir()
     with exclusive(tmp_path / "out"):

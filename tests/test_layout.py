@@ -3,14 +3,16 @@ reaches every command, the layering holds, and the pipeline lists the code it ru
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-IMPORTS_TOOL = ROOT.parent / "shared" / "tools" / "imports.py"
 
 
 def _python(code: str) -> subprocess.CompletedProcess:
@@ -73,24 +75,99 @@ def test_bgap_command_runs_the_same_program_as_python_m():
     assert outs[0].stderr == outs[1].stderr and "mix" in outs[0].stderr
 
 
-def test_top_level_holds_at_most_ten_packages_and_short_shims():
+def test_top_level_holds_ten_domain_packages_the_runner_and_short_shims():
+    """Ten packages named after the domain (traffic, simulators, agents, CMetric, ...) and
+    ``runner``, the plumbing of where work runs: a floor of its own between ``common`` and
+    the agents (whose training monitor needs its Ctrl-C flag), which neither fits in the
+    ground floor (it needs Ray, process pools and torch's threads) nor in a domain
+    package."""
     entries = [p for p in (ROOT / "bgap").iterdir() if p.name != "__pycache__"]
-    packages = [p.name for p in entries if p.is_dir() and p.name != "conf"]
+    packages = [p.name for p in entries if p.is_dir() and p.name not in ("conf", "runner")]
     assert len(packages) <= 10, packages
     for module in entries:
         if module.suffix == ".py" and module.name not in ("__init__.py", "__main__.py"):
             assert len(module.read_text().splitlines()) <= 5, module.name
 
 
-@pytest.mark.skipif(not IMPORTS_TOOL.exists(), reason="needs ../shared/tools/imports.py")
-def test_no_import_cycle_and_no_forbidden_edge():
-    """The layering written in pyproject.toml ([tool.imports]) and no cycle between modules
-    or packages, function-level imports counted."""
+def _lint_imports(root: Path, pythonpath: Path | None = None) -> set[str]:
+    """The ids of the contracts in ``root/pyproject.toml`` that lint-imports (import-linter)
+    finds broken in the ``bgap`` package first on ``pythonpath`` (the installed one without)."""
+    env = {**os.environ, "COLUMNS": "300"}  # one contract a line, unwrapped
+    if pythonpath is not None:
+        env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(pythonpath), env.get("PYTHONPATH")]))
     done = subprocess.run(
-        [sys.executable, str(IMPORTS_TOOL), "--packages"], cwd=ROOT, capture_output=True, text=True
-    )
-    assert done.returncode == 0, done.stdout[-3000:]
-    assert "0 cycle(s), 0 package cycle edge(s), 0 forbidden edge(s)" in done.stdout
+        [sys.executable, "-c", "from importlinter.cli import lint_imports_command; "
+         "lint_imports_command()", "--no-cache", "--no-logo"],
+        cwd=root, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    contracts = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["importlinter"]
+    lines = done.stdout.splitlines()
+    verdicts = {
+        c["id"]: next((w for line in lines if line.startswith(c["name"] + " ")
+                       for w in ("KEPT", "BROKEN") if w in line.split()), None)
+        for c in contracts["contracts"]
+    }  # fmt: skip
+    report = done.stdout[-3000:] + done.stderr[-3000:]
+    assert None not in verdicts.values(), report  # every contract was checked
+    broken = {name for name, verdict in verdicts.items() if verdict == "BROKEN"}
+    assert done.returncode == (1 if broken else 0), report
+    return broken
+
+
+def test_no_import_cycle_and_no_forbidden_edge():
+    """The layering written in pyproject.toml ([tool.importlinter]): its floors, the imports
+    forbidden beside them and no cycle between packages, function-level imports counted."""
+    assert _lint_imports(ROOT) == set()
+
+
+def _copy_of_the_project(tmp_path: Path) -> Path:
+    copy = tmp_path / "project"
+    shutil.copytree(ROOT / "bgap", copy / "bgap", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "pyproject.toml", copy / "pyproject.toml")
+    return copy
+
+
+# Each case adds imports to a copy of the package (module: line, the module made where it is
+# missing); a chain of imports breaks a contract too (common -> sim: analysis -> common -> sim).
+FLOORS, CYCLES = "floors", "no-cycles"
+FORBIDDEN_IMPORTS = [
+    ({"common/errors.py": "import bgap.experiments"}, {FLOORS, "experiments-on-top", CYCLES}),
+    ({"common/errors.py": "from bgap.sim import rollout"},
+     {FLOORS, "analysis-without-simulators", CYCLES}),
+    ({"analysis/stats.py": "import bgap.agents.zoo"}, {"analysis-without-simulators"}),
+    ({"sim/core.py": "from bgap import calibration"}, {"calibration-above-datasets", CYCLES}),
+    ({"traffic/behaviors.py": "import bgap.cmetric"}, {FLOORS}),
+    ({"traffic/scenario.py": "import bgap.analysis.episodes"}, {"analysis-apart", CYCLES}),
+    ({"common/errors.py": "import bgap.common.runs"}, {CYCLES}),  # two modules of common
+    # two new packages, no module cycle: a.x -> b.y and b.z -> a.w, a cycle of packages
+    ({"a/__init__.py": "", "a/w.py": "", "a/x.py": "import bgap.b.y",
+      "b/__init__.py": "", "b/y.py": "", "b/z.py": "import bgap.a.w"}, {CYCLES}),
+    ({"runner/__init__.py": "import bgap.agents", "agents/__init__.py": "import bgap.runner"},
+     {FLOORS, CYCLES}),
+    ({"cmetric/score.py": "import bgap.runner"}, {FLOORS}),
+    ({"cmetric/__main__.py": "import bgap.runner"}, set()),  # the CMetric command may
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("edits", "broken"), FORBIDDEN_IMPORTS)
+def test_lint_imports_catches_a_forbidden_import(tmp_path, edits, broken):
+    """A copy of the package with imports added: lint-imports finds exactly the contracts they
+    break (bgap.runner made in the copy where it does not exist yet)."""
+    copy = _copy_of_the_project(tmp_path)
+    (copy / "bgap" / "runner").mkdir(exist_ok=True)
+    (copy / "bgap" / "runner" / "__init__.py").touch()
+    for module, line in edits.items():
+        target = copy / "bgap" / module
+        target.parent.mkdir(exist_ok=True)
+        target.write_text((target.read_text() if target.exists() else "") + f"\n{line}\n")
+    assert _lint_imports(copy, pythonpath=copy) == broken
+
+
+def test_lint_imports_holds_without_the_planned_runner(tmp_path):
+    """bgap.runner is an optional floor (in parentheses): a tree without it is checked too."""
+    copy = _copy_of_the_project(tmp_path)
+    shutil.rmtree(copy / "bgap" / "runner", ignore_errors=True)
+    assert _lint_imports(copy, pythonpath=copy) == set()
 
 
 def test_every_stage_lists_exactly_the_code_its_command_runs(tmp_path):

@@ -1,4 +1,4 @@
-"""Thread counts set for a training stay set once the simulator runs (bgap.common.threads)."""
+"""Thread counts set for a training stay set once the simulator runs (bgap.runner.threads)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ PROBE = """
 import sys, tempfile, torch
 from pathlib import Path
 from bgap.common.config import validate
-from bgap.common.threads import set_threads
+from bgap.runner.threads import set_threads
 from bgap.experiments.config import compose
 from bgap.experiments.train import make_training_env
 from bgap.experiments.training import build_model
@@ -47,7 +47,7 @@ def test_one_torch_thread_stays_one_after_the_simulators_first_kernel():
 
 def test_side_by_side_processes_share_the_cores_they_may_run_on(monkeypatch):
     """The share is the process's affinity over the processes, never below one thread."""
-    from bgap.common.threads import cores_per_process
+    from bgap.runner.threads import cores_per_process
 
     for cores, processes, share in ((16, 3, 5), (16, 2, 8), (2, 2, 1), (2, 4, 1), (1, 1, 1)):
         monkeypatch.setattr(os, "sched_getaffinity", lambda _, n=cores: set(range(n)))
@@ -61,7 +61,7 @@ def _threads_after_a_kernel() -> tuple[int, int]:
     import numpy as np
     import torch
 
-    from bgap.common.threads import _first_parallel_kernel
+    from bgap.runner.threads import _first_parallel_kernel
 
     _first_parallel_kernel(np.zeros(8))
     return torch.get_num_threads(), numba.get_num_threads()
@@ -72,10 +72,10 @@ def test_trainings_side_by_side_run_no_more_kernel_threads_than_cores():
     kernels together on at most the cores there are. With numba's default in each (one
     thread per core, as before 2026-12-04) two processes on two cores ran four threads and
     every kernel waited at its barrier: 2.8x slower (python -m bgap.bench side)."""
-    from bgap.experiments.train import side_by_side_pool
+    from bgap.runner.pools import process_pool
 
     cores = len(os.sched_getaffinity(0))
-    with side_by_side_pool(2) as pool:
+    with process_pool(2) as pool:
         counts = [f.result() for f in [pool.submit(_threads_after_a_kernel) for _ in range(2)]]
     for torch_threads, numba_threads in counts:
         assert torch_threads == 1

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import re
+import signal
 from dataclasses import replace
 from pathlib import Path
 
@@ -210,8 +212,8 @@ def _interrupted_then_resumed(cfg, monkeypatch, at: int):
     original = SB3Monitor._on_step
 
     def ctrl_c(self):
-        if self.num_timesteps >= at:
-            self._request_stop(2, None)  # what the SIGINT handler does
+        if self.num_timesteps >= at and not self.ctrl_c.requested:
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C, once
         return original(self)
 
     monkeypatch.setattr(SB3Monitor, "_on_step", ctrl_c)

@@ -20,8 +20,6 @@ import json
 import os
 import pickle
 import shutil
-import signal
-import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -33,6 +31,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from bgap.agents.policies import rollout
 from bgap.common.plotting import pyplot
 from bgap.common.runs import BEST_MODEL, CHECKPOINT_STATE, write_atomic
+from bgap.runner.interrupt import CtrlC
 from bgap.sim.rollout import EpisodeStats
 
 INFO_KEYS = ("ego_speed", "lane_change", "crashed", "contact_dx")
@@ -284,30 +283,22 @@ class SB3Monitor(BaseCallback):
     ) -> None:
         super().__init__()
         self.monitor, self.every, self.extra_state = monitor, checkpoint_every, extra_state
-        self.interrupted = False
+        self.ctrl_c = CtrlC()
         self.saved_at: int | None = None
         """Environment steps of the last checkpoint written (None: none yet)."""
         monitor.log = lambda key, value: self.logger.record(key, value)
 
     def _on_training_start(self) -> None:
         self._last_ckpt = self.num_timesteps
-        self._previous_handler = None
-        if threading.current_thread() is threading.main_thread():
-            self._previous_handler = signal.signal(signal.SIGINT, self._request_stop)
-
-    def _request_stop(self, signum: int, frame: Any) -> None:
-        if self.interrupted:  # the second Ctrl-C: stop now
-            raise KeyboardInterrupt
-        self.interrupted = True
+        self.ctrl_c.start()
 
     def _on_training_end(self) -> None:
-        if self._previous_handler is not None:
-            signal.signal(signal.SIGINT, self._previous_handler)
+        self.ctrl_c.stop()
 
     def _on_rollout_start(self) -> None:
-        if self.interrupted:
+        if self.ctrl_c.requested:
             self.checkpoint()
-            self._on_training_end()
+            self.ctrl_c.stop()
             raise KeyboardInterrupt
         if self.num_timesteps - self._last_ckpt >= self.every:
             self.checkpoint()

@@ -28,13 +28,8 @@ from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.runs import (
-    exclusive,
-    exclusive_file,
-    other_settings,
-    save_run_metadata,
-    write_atomic,
-)
+from bgap.common.runs import other_settings, save_run_metadata, write_atomic
+from bgap.runner.locks import exclusive, exclusive_file
 
 USAGE = "usage: python -m bgap.cmetric input=TRAJECTORIES.(parquet|csv) [key=value ...]"
 

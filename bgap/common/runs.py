@@ -9,17 +9,12 @@ folders (``bgap.run``: both policies and the results).
 
 from __future__ import annotations
 
-import fcntl
 import hashlib
-import io
 import json
 import os
 import pickle
-import sys
-import tarfile
 import zipfile
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -31,7 +26,7 @@ from bgap.common.errors import ConfigError
 T = TypeVar("T")
 
 LOCK = ".lock"
-"""The advisory lock file of a folder a command is writing (:func:`exclusive`)."""
+"""The advisory lock file of a folder a command is writing (:mod:`bgap.runner.locks`)."""
 
 CHECKPOINT_STATE = "state.pkl"
 """A training checkpoint's counters and states (:mod:`bgap.agents.monitor`), written last:
@@ -261,114 +256,3 @@ def write_atomic(path: Path, data: str | bytes | Callable[[Path], Any]) -> Path:
     finally:
         tmp.unlink(missing_ok=True)
     return path
-
-
-_HELD: dict[Path, int] = {}
-
-
-@contextmanager
-def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
-    """Hold an advisory lock on ``folder`` while this process writes it. Another process
-    holding it: refused in one line naming that process (``wait``: wait for it instead).
-    Re-entrant within a process (``bgap.run`` locks the run folders its trainings lock). A
-    folder this call created and left empty (the command was refused or interrupted before
-    it wrote anything) is removed again."""
-    folder = Path(folder).resolve()
-    if folder in _HELD:
-        _HELD[folder] += 1
-        try:
-            yield
-        finally:
-            _HELD[folder] -= 1
-        return
-    created = not folder.exists()
-    folder.mkdir(parents=True, exist_ok=True)
-    try:
-        with _holding(folder / LOCK, folder, wait):
-            _HELD[folder] = 1
-            yield
-    finally:
-        _HELD.pop(folder, None)
-        if created and not any(folder.iterdir()):  # refused before writing: leave no trace
-            folder.rmdir()
-
-
-@contextmanager
-def exclusive_file(path: str | Path) -> Iterator[None]:
-    """Hold an advisory lock on the output file ``path`` (and the side files named after
-    it) while this process writes them: ``.<name>.lock`` beside it, so that commands
-    writing other files of the same folder do not wait on each other. Another process
-    holding it: refused in one line naming that process."""
-    path = Path(path).resolve()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with _holding(path.with_name(f".{path.name}{LOCK}"), path, False):
-        yield
-
-
-@contextmanager
-def _holding(lock: Path, what: Path, wait: bool) -> Iterator[None]:
-    """The lock file ``lock`` held, naming this process, for writing ``what``."""
-    handle = _lock(lock, what, wait)
-    try:
-        handle.seek(0)
-        handle.truncate()
-        handle.write(f"process {os.getpid()} ({' '.join(sys.argv[:1] + sys.argv[1:3])})\n")
-        handle.flush()
-        yield
-    finally:
-        # removed while still held, so that no lock file is left in a finished folder (a
-        # DVC output): a process waiting on this file sees it gone and locks the new one
-        lock.unlink(missing_ok=True)
-        fcntl.flock(handle, fcntl.LOCK_UN)
-        handle.close()
-
-
-def pack(folder: Path) -> bytes:
-    """A folder as a gzipped tar in memory (a run folder sent to or from a cluster's node);
-    an absent folder as an empty archive."""
-    buffer = io.BytesIO()
-    with tarfile.open(fileobj=buffer, mode="w:gz") as archive:
-        if folder.exists():
-            for path in sorted(folder.rglob("*")):
-                if path.name != LOCK:
-                    archive.add(path, arcname=str(path.relative_to(folder)), recursive=False)
-    return buffer.getvalue()
-
-
-def unpack(data: bytes, folder: Path) -> None:
-    """:func:`pack`'s archive into ``folder`` (created; files it holds are replaced)."""
-    folder.mkdir(parents=True, exist_ok=True)
-    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as archive:
-        archive.extractall(folder, filter="data")
-
-
-def held_by_parent(folders: Iterable[str | Path]) -> None:
-    """In a worker process: ``folders`` are locked by the process that started it (its
-    :func:`exclusive` covers this one's writes), so this process's :func:`exclusive` on them
-    is re-entrant, as in the parent."""
-    for folder in folders:
-        _HELD.setdefault(Path(folder).resolve(), 1)
-
-
-def _lock(path: Path, what: Path, wait: bool) -> Any:
-    """The lock file at ``path``, opened and locked; retried when the holder removed it
-    meanwhile (the locked file must still be the one at the path)."""
-    while True:
-        handle = open(path, "a+")  # noqa: SIM115 - held open while locked
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | (0 if wait else fcntl.LOCK_NB))
-        except BlockingIOError:
-            handle.seek(0)
-            holder = handle.read().strip() or "another process"
-            handle.close()
-            raise ConfigError(
-                f"{what} is being written by {holder}; wait for it to finish or choose "
-                "another output"
-            ) from None
-        try:
-            same = os.fstat(handle.fileno()).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            return handle
-        handle.close()

@@ -18,9 +18,10 @@ from tqdm import tqdm
 from bgap.cmetric.io import load_trajectories
 from bgap.common.cli import bare_first_argument
 from bgap.common.config import app, load
-from bgap.common.runs import exclusive, save_run_metadata, write_atomic
+from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.datasets.config import SCHEMAS, DatasetsConfig
 from bgap.datasets.sumo import record, sumo_home
+from bgap.runner.locks import exclusive
 
 
 def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:

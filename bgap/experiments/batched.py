@@ -6,10 +6,7 @@ from __future__ import annotations
 
 import json
 import pickle
-import signal
-import threading
 from collections.abc import Callable, Sequence
-from contextlib import ExitStack
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -28,18 +25,8 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import MODEL_ATTRIBUTE, with_features
-from bgap.common.cluster import (
-    ClusterConfig,
-    connected,
-    kept_trainings,
-    run_tasks,
-    ship_in,
-    task_folder,
-    writable,
-)
 from bgap.common.errors import ConfigError, Interrupted, check
-from bgap.common.runs import CHECKPOINT_STATE, digest, exclusive, pack, unpack, write_atomic
-from bgap.common.threads import set_threads
+from bgap.common.runs import CHECKPOINT_STATE, digest, write_atomic
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
@@ -49,6 +36,9 @@ from bgap.experiments.training import (
     run_name,
     training_config,
 )
+from bgap.runner.cluster import ClusterConfig
+from bgap.runner.interrupt import CtrlC
+from bgap.runner.threads import set_threads
 from bgap.sim.simulators import make_vector_env
 from bgap.traffic.scenario import env_config
 
@@ -100,16 +90,9 @@ class _Group:
         return list(range(position * self.n_envs, (position + 1) * self.n_envs))
 
 
-def train_batched(
-    cfgs: Sequence[ExperimentConfig], progress: bool = True, sb3_streams: bool = False
-) -> list[Path]:
-    """Train every config of ``cfgs`` (members: same agent, profile and backend; any policy
-    family, seed and traffic) in one :class:`~bgap.agents.batched.BatchedDQN`; each member
-    gets the run folder :func:`train` writes (config, command, ``tb/``, ``evaluations.csv``,
-    checkpoints, an SB3-loadable ``model.zip``). Finished members are reused, unfinished
-    ones resumed (``resume=true``) from their own checkpoints; returns the run folders.
-    ``sb3_streams``: one member drawing from SB3's random streams
-    (:class:`~bgap.agents.batched.BatchedDQN`), to compare a whole training with SB3's."""
+def batched_members(cfgs: Sequence[ExperimentConfig]) -> list[ExperimentConfig]:
+    """``cfgs`` as the members of one batched learner, or one line saying why they cannot
+    be: the same agent, profile and backend (any policy family, seed and traffic)."""
     check(len(cfgs) >= 1, "seeds", [], "the batched learner needs at least one training")
     cfgs = [replace(training_config(c), learner="batched") for c in cfgs]
     first = cfgs[0]
@@ -120,59 +103,45 @@ def train_batched(
                     f"members of one batched learner need the same {key}: seed {c.seed} "
                     f"({c.policy}) differs from seed {first.seed} ({first.policy})"
                 )
+    return cfgs
+
+
+def train_batched(
+    cfgs: Sequence[ExperimentConfig], progress: bool = True, sb3_streams: bool = False
+) -> list[Path]:
+    """Train every config of ``cfgs`` (:func:`batched_members`) here, in one
+    :class:`~bgap.agents.batched.BatchedDQN`; each member gets the run folder
+    :func:`~bgap.experiments.train.train` writes (config, command, ``tb/``,
+    ``evaluations.csv``, checkpoints, an SB3-loadable ``model.zip``). Finished members are
+    reused, unfinished ones resumed (``resume=true``) from their own checkpoints; returns
+    the run folders. ``sb3_streams``: one member drawing from SB3's random streams
+    (:class:`~bgap.agents.batched.BatchedDQN`), to compare a whole training with SB3's.
+    (:func:`bgap.experiments.train.trainings` locks the folders and sends the members to
+    a cluster.)"""
+    cfgs = batched_members(cfgs)
     dirs = member_dirs(cfgs)
     if len(set(dirs)) < len(dirs):
         raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
-    cluster = first.cluster
-    if cluster.enabled and cluster.storage:
-        writable(cluster.storage)
-    with ExitStack() as locks:  # each member's folder, while this process writes it
-        for d in sorted(set(dirs)):
-            locks.enter_context(exclusive(d))
-        if cluster.enabled:
-            with connected(cluster):  # one line for a cluster out of reach, before any file
-                _on_cluster(cfgs, dirs, progress)
-        else:
-            _open_and_train(cfgs, dirs, progress, sb3_streams)
+    _open_and_train(cfgs, dirs, progress, sb3_streams)
     return dirs  # every member's, the finished ones' too
 
 
-def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool) -> None:
-    """The unfinished members as one Ray task (:mod:`bgap.common.cluster`, ``cluster.cpus``
-    and ``cluster.gpus``: a batched learner is one process): their run folders travel to the
-    node, train there (in ``cluster.storage`` when set, so a retried task resumes from the
-    lost one's checkpoints) and come back whole."""
-    opened = [open_run_dir(c, d) for c, d in zip(cfgs, dirs, strict=True)]
-    todo = [i for i, (_, status) in enumerate(opened) if status != "finished"]
-    if not todo:
-        return
-    cluster = cfgs[0].cluster
-    members = [cfgs[i] for i in todo]
-    if progress:
-        print(f"{len(members)} members of one batched learner as a Ray task on "
-              f"{cluster.address}", flush=True)  # fmt: skip
-    (packed,) = run_tasks(
-        cluster, _members_task, [(members, [pack(dirs[i]) for i in todo], cluster.storage)],
-        kept=kept_trainings(cluster.storage),
-    )  # fmt: skip
-    for i, data in zip(todo, packed, strict=True):
-        unpack(data, dirs[i])
+def place_members(base: Path, cfgs: list[ExperimentConfig]) -> list[Path]:
+    """On a node: where a batched learner's Ray task keeps its members' run folders (in
+    ``cluster.storage``, so that a retried task resumes from the lost one's checkpoints)."""
+    return member_dirs(_on_node(base, cfgs))
 
 
-def _members_task(
-    cfgs: list[ExperimentConfig], packed: list[bytes], storage: str | None
-) -> list[bytes]:
+def train_members_on_node(base: Path, cfgs: list[ExperimentConfig]) -> None:
     """On a node: the shipped members trained to the end in one batched learner (each
-    resumed from its checkpoint, or from one a lost attempt left in ``storage``)."""
-    with task_folder(storage) as base:
-        group = base / f"batched-{digest([run_name(c) for c in cfgs])}"
-        here = [replace(c, run_dir=str(group), root=str(base), cluster=ClusterConfig(),
-                        resume=True) for c in cfgs]  # fmt: skip
-        work = member_dirs(here)
-        for data, d in zip(packed, work, strict=True):
-            ship_in(data, d)
-        train_batched(here, progress=False)
-        return [pack(d) for d in work]
+    resumed from its checkpoint, or from one a lost attempt left in ``cluster.storage``)."""
+    train_batched(_on_node(base, cfgs), progress=False)
+
+
+def _on_node(base: Path, cfgs: list[ExperimentConfig]) -> list[ExperimentConfig]:
+    group = base / f"batched-{digest([run_name(c) for c in cfgs])}"
+    return [replace(c, run_dir=str(group), root=str(base), cluster=ClusterConfig(),
+                    resume=True) for c in cfgs]  # fmt: skip
 
 
 def _open_and_train(
@@ -203,9 +172,8 @@ def _train_members(
     bar = tqdm(total=int(members.p.train_steps * len(cfgs)),
                initial=int(members.learner.num_timesteps.sum()), disable=not progress,
                unit="step", desc=f"{len(cfgs)} trainings")  # fmt: skip
-    interrupted = _Interrupt()
     try:
-        with interrupted:
+        with CtrlC() as interrupted:
             for k in np.flatnonzero(~members.active):  # resumed at its budget: only the end
                 members.finish(k)
             while members.active.any():
@@ -438,23 +406,3 @@ def _member_info(info: dict[str, Any], envs: list[int]) -> dict[str, Any]:
     if "rewards" in info:
         out["rewards"] = {t: np.asarray(v)[envs] for t, v in info["rewards"].items()}
     return out
-
-
-class _Interrupt:
-    """The first Ctrl-C asks for checkpoints at the next whole step; a second one stops at
-    once (as :class:`~bgap.agents.monitor.SB3Monitor`)."""
-
-    def __enter__(self) -> _Interrupt:
-        self.requested, self._previous = False, None
-        if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handle)
-        return self
-
-    def _handle(self, signum: int, frame: Any) -> None:
-        if self.requested:
-            raise KeyboardInterrupt
-        self.requested = True
-
-    def __exit__(self, *exc: Any) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)

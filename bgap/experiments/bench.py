@@ -269,9 +269,9 @@ def bench_evaluate(seconds: float, episodes: int = 100) -> None:
     measurement's repetitions."""
     # Imported here: each benchmark loads only what it measures (cmetric: no simulator).
     from bgap.agents.policies import rollout
-    from bgap.common.threads import set_threads
     from bgap.experiments.train import make_training_env
     from bgap.experiments.training import build_model
+    from bgap.runner.threads import set_threads
     from bgap.sim.vector import VectorHighway
 
     set_threads(1)  # as bgap.evaluate's workers
@@ -499,7 +499,7 @@ def bench_cluster(seconds: float, trainings: int = 4) -> None:
     ratio of the throughputs."""
     from ray.cluster_utils import Cluster
 
-    from bgap.experiments.train import train_side_by_side
+    from bgap.experiments.train import trainings as train_all
     from bgap.experiments.training import member_configs
 
     steps = max(300, int(seconds * 150))  # ~150 steps/s for one training on one core
@@ -518,7 +518,7 @@ def bench_cluster(seconds: float, trainings: int = 4) -> None:
                 f"cluster.address={cluster.address}",
             ]))  # fmt: skip
             start = time.perf_counter()
-            train_side_by_side(member_configs(cfg), 1)
+            train_all(member_configs(cfg), progress=False)
             walls[nodes] = time.perf_counter() - start
         cluster.shutdown()
         print(f"{nodes} node(s): {trainings} trainings of {steps} steps in {walls[nodes]:.1f} s "
@@ -542,14 +542,14 @@ def bench_side(seconds: float, trainings: int = 2) -> None:
 
     import numba
 
-    from bgap.common.threads import cores_per_process, set_threads
-    from bgap.experiments.train import side_by_side_pool
+    from bgap.runner.pools import process_pool
+    from bgap.runner.threads import cores_per_process, set_threads
 
     pools = {
         f"numba's default ({numba.config.NUMBA_NUM_THREADS} threads each)": ProcessPoolExecutor(
             trainings, get_context("spawn"), initializer=partial(set_threads, 1)
         ),
-        f"bgap.train's share ({cores_per_process(trainings)} each)": side_by_side_pool(trainings),
+        f"bgap.train's share ({cores_per_process(trainings)} each)": process_pool(trainings),
     }
     rates = []
     for name, pool in pools.items():

@@ -11,7 +11,6 @@ from omegaconf import DictConfig
 from bgap.agents.config import AgentConfig
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN
 from bgap.common import config as plumbing
-from bgap.common.cluster import ClusterConfig
 from bgap.common.errors import check
 from bgap.common.vocab import (
     BASELINES,
@@ -21,6 +20,7 @@ from bgap.common.vocab import (
     POLICIES,
     SPEED_FLOOR,
 )
+from bgap.runner.cluster import ClusterConfig
 from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
 from bgap.sim.config import BaseConfig
 from bgap.traffic.replay import MODES, load_replay
@@ -163,7 +163,7 @@ class ExperimentConfig(BaseConfig):
     val_seed + k: choices are made on these, never on the test episodes (ours)."""
     cluster: ClusterConfig = field(default_factory=ClusterConfig)
     """Where the work runs: here (the default) or on a Ray cluster (``cluster.address``,
-    :mod:`bgap.common.cluster`); never what it computes."""
+    :mod:`bgap.runner.cluster`); never what it computes."""
     workers: int = 2
     """Worker processes: evaluation's, and ``bgap.train``'s and ``bgap.run``'s for several
     SB3 trainings side by side (one training per process)."""

@@ -16,10 +16,7 @@ from __future__ import annotations
 import json
 import tempfile
 from collections.abc import Iterable
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
-from functools import partial
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -33,7 +30,6 @@ from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, 
 from bgap.analysis.episodes import EPISODES, MODELS
 from bgap.analysis.stats import per_100km, spread_interval, wilson_interval
 from bgap.cmetric import boundary as classes
-from bgap.common.cluster import connected, run_tasks
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -44,16 +40,17 @@ from bgap.common.runs import (
     VOLATILE,
     as_before,
     digest,
-    exclusive,
     model_file,
     run_folders,
     save_run_metadata,
     write_atomic,
 )
 from bgap.common.tables import read_table
-from bgap.common.threads import set_threads
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
+from bgap.runner.cluster import connected
+from bgap.runner.jobs import run_jobs
+from bgap.runner.locks import exclusive
 from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import env_config, env_preset
 
@@ -181,17 +178,6 @@ def _shippable(spec: Any) -> Any:
     return spec
 
 
-def _evaluate_shipped(name: str, spec: Any, *rest: Any) -> list:
-    """:func:`_evaluate_chunk` on a node, a shipped model written to a file of its own."""
-    if isinstance(spec, tuple):
-        prefix, data = spec
-        with tempfile.TemporaryDirectory() as tmp:
-            path = Path(tmp) / "model.zip"
-            path.write_bytes(data)
-            return _evaluate_chunk(name, load_model(f"{prefix}{path}"), *rest)
-    return _evaluate_chunk(name, spec, *rest)
-
-
 PROCESS_EPISODES = 5_000
 """Vector-backend evaluations of fewer episodes run in this process: a spawned worker takes
 seconds to import torch and bgap."""
@@ -200,20 +186,21 @@ _MODELS: dict[str, Any] = {}
 """A worker process's loaded models by path (an SB3 load builds the networks again)."""
 
 
-def _evaluate_cached(name: str, spec: Any, *rest: Any) -> list:
-    """:func:`_evaluate_chunk` in a worker process, each model loaded once per process."""
+def _evaluate_job(name: str, spec: Any, *rest: Any) -> list:
+    """:func:`_evaluate_chunk` wherever it runs: a saved model loaded once per process (an
+    SB3 load builds the networks again: ~0.3 s, 1,200 times in the paper's grid), a model
+    shipped to a cluster's node (:func:`_shippable`) written to a file of its own first."""
+    if isinstance(spec, tuple):
+        prefix, data = spec
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "model.zip"
+            path.write_bytes(data)
+            return _evaluate_chunk(name, load_model(f"{prefix}{path}"), *rest)
     if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
         if str(spec) not in _MODELS:
             _MODELS[str(spec)] = load_model(spec)
         spec = _MODELS[str(spec)]
     return _evaluate_chunk(name, spec, *rest)
-
-
-def _loaded(spec: Any) -> Any:
-    """A saved model's path as the loaded model; any other policy form as it is."""
-    if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
-        return load_model(spec)
-    return spec
 
 
 def _density_of(rows: int) -> str:
@@ -247,10 +234,7 @@ def evaluate(
         named = all(isinstance(spec, (str, Path)) for spec in policies.values())
         if not named or len(cells) * len(policies) * episodes < PROCESS_EPISODES:
             workers = 1  # in-process: any policy object; no process start for a small run
-    if workers == 1 and not cfg.cluster.enabled:  # in-process: load each model once, not once
-        # per cell and chunk (an SB3 load builds the networks again: ~0.3 s, 1,200 times in
-        # the paper's grid)
-        policies = {name: _loaded(spec) for name, spec in policies.items()}
+    _MODELS.clear()  # models loaded by an earlier evaluation here: their files may be new
     needed = _check_densities(policies, cells, cfg)
     configs = [cell_env_config(cfg, cell) for cell in cells]
     skipped = _own_density(needed, cells, configs)
@@ -272,36 +256,22 @@ def _play(
     cfg: ExperimentConfig, jobs: list[tuple], chunk: int, workers: int, progress: bool,
     policies: dict[str, Any],
 ) -> list[dict]:  # fmt: skip
-    """Every job of :func:`evaluate` here, in worker processes or as Ray tasks."""
-    rows: list[dict] = []
+    """Every job of :func:`evaluate` (:func:`bgap.runner.jobs.run_jobs`: here, in worker
+    processes of one thread each, or as Ray tasks). One thread: a process's kernels and its
+    policies' forward passes alternate, so a process with threads leaves cores idle."""
     bar = tqdm(total=len(jobs) * chunk, unit="ep", desc="evaluate", disable=not progress)
-    if cfg.cluster.enabled:  # one Ray task per job; a model travels as its file's bytes
+    if cfg.cluster.enabled:  # a model travels as its file's bytes
         shipped = {name: _shippable(spec) for name, spec in policies.items()}
-        calls = [(name, shipped[name], *rest) for name, _, *rest in jobs]
-        for part in run_tasks(
-            cfg.cluster, _evaluate_shipped, calls, lambda k, r: bar.update(chunk)
-        ):
-            rows.extend(part)
-    elif workers > 1 and cfg.backend == "vector":
-        # processes of one thread each: a process's kernels in one thread and its policies'
-        # forward passes alternate, so a process with threads leaves cores idle between its
-        # kernels; spawned, not forked, since torch's thread pool does not survive a fork
-        context = get_context("spawn")
-        with ProcessPoolExecutor(workers, context, initializer=partial(set_threads, 1, 1)) as pool:
-            for part in pool.map(_evaluate_cached, *zip(*jobs, strict=True)):
-                rows.extend(part)
-                bar.update(chunk)
-    elif workers > 1:
-        with ProcessPoolExecutor(workers, mp_context=get_context("fork")) as pool:
-            for part in pool.map(_evaluate_chunk, *zip(*jobs, strict=True)):
-                rows.extend(part)
-                bar.update(chunk)
-    else:
-        for job in jobs:
-            rows.extend(_evaluate_chunk(*job))
-            bar.update(chunk)
-    bar.close()
-    return rows
+        jobs = [(name, shipped[name], *rest) for name, _, *rest in jobs]
+    try:
+        parts = run_jobs(
+            _evaluate_job, jobs, workers=workers, numba_threads=1, cluster=cfg.cluster,
+            done=lambda k, part: bar.update(chunk),
+            kept="no episode was written; the same command plays them again",
+        )  # fmt: skip
+    finally:
+        bar.close()
+    return [row for part in parts for row in part]
 
 
 STORED = {

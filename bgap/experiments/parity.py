@@ -24,10 +24,11 @@ from bgap.common.cli import run as run_cli
 from bgap.common.config import SEED_MAX, validate
 from bgap.common.errors import ConfigError, check
 from bgap.common.plotting import pyplot
-from bgap.common.runs import exclusive, write_atomic
+from bgap.common.runs import write_atomic
 from bgap.common.tables import read_csv
 from bgap.common.vocab import CLASSES
 from bgap.datasets.config import compose
+from bgap.runner.locks import exclusive
 from bgap.traffic.scenario import env_config, fast_mode
 
 # The scripted ego: a fixed cycle of meta-actions (indexed by the policy step), busy enough

@@ -60,7 +60,22 @@ def _imports(root: Path, path: Path) -> set[str]:
                 base = ".".join([*parts, base] if base else parts)
             names.add(base)
             names.update(f"{base}.{a.name}" for a in node.names)
+        elif _is_command_entry(node):  # a command's shim imports its module by name
+            names.add(node.args[0].value)
     return {n for n in names if n == "bgap" or n.startswith("bgap.")}
+
+
+def _is_command_entry(node: ast.AST) -> bool:
+    """``command("bgap.x.y")`` (:func:`bgap.runner.numerics.command`): the module named is
+    imported when the command runs."""
+    return (
+        isinstance(node, ast.Call)
+        and isinstance(node.func, ast.Name)
+        and node.func.id == "command"
+        and len(node.args) == 1
+        and isinstance(node.args[0], ast.Constant)
+        and isinstance(node.args[0].value, str)
+    )
 
 
 def closure(module: str, root: Path = ROOT) -> list[str]:

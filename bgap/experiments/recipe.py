@@ -37,8 +37,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -50,11 +48,9 @@ from omegaconf import DictConfig
 
 from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
 from bgap.common.config import app, load, validate
-from bgap.common.errors import Interrupted
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
-from bgap.common.threads import set_threads
 from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
 from bgap.experiments.evaluate import crash_split
@@ -70,6 +66,7 @@ from bgap.experiments.sweep import (
     write_outputs,
 )
 from bgap.experiments.train import SIDE_BY_SIDE_STEPS, train
+from bgap.runner.jobs import run_jobs
 
 GROUPS = ("reward", "agent")
 """Config groups a recipe sets (the search space's keys must stay inside them)."""
@@ -153,24 +150,15 @@ def check_all(
         if study is not None:
             study.set_user_attr(keys[i], kept_row(row))
 
-    if cfg.workers <= 1 or len(todo) <= 1 or cfg.profile.train_steps < SIDE_BY_SIDE_STEPS:
-        for i in todo:
-            finished(i, check_seed(cfg, *calls[i], root, progress))
-        return [rows[i] for i in range(len(calls))]
-    # spawned, not forked: a process that has run torch (OpenMP) cannot fork safely
-    context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(min(cfg.workers, len(todo)), context) as pool:
-        futures = {pool.submit(_check_worker, cfg, *calls[i], root): i for i in todo}
-        try:
-            for future in as_completed(futures):
-                finished(futures[future], future.result())
-        except KeyboardInterrupt:
-            pool.shutdown(wait=True, cancel_futures=True)
-            raise Interrupted(
-                f"the check stopped; its finished trainings are kept in {root} (and their rows "
-                "in the study, saved with its trial log) and are reused when the same command "
-                "runs again"
-            ) from None
+    short = cfg.profile.train_steps < SIDE_BY_SIDE_STEPS
+    workers = 1 if short else cfg.workers
+    kept = (
+        f"its finished trainings are kept in {root} (and their rows in the study, saved with "
+        "its trial log) and are reused when the same command runs again"
+    )
+    jobs = [(cfg, *calls[i], root, progress and workers <= 1) for i in todo]
+    done = lambda k, row: finished(todo[k], row)  # noqa: E731
+    run_jobs(check_seed, jobs, workers=workers, numba_threads=1, done=done, kept=kept)
     return [rows[i] for i in range(len(calls))]
 
 
@@ -210,11 +198,6 @@ CURVE_KEYS = tuple(
     f"{who}{key}" for who in ("", "idle_", "rule_") for key in ("collision_pct", "avg_speed")
 ) + ("gradient_updates",)
 """The columns of a training's ``evaluations.csv`` that the learning curves plot."""
-
-
-def _check_worker(cfg: RecipeConfig, v: Variant, seed: int, root: Path) -> dict[str, Any]:
-    set_threads(1, 1)  # one process per core: threads would oversubscribe them
-    return check_seed(cfg, v, seed, root, progress=False)
 
 
 def train_overrides(cfg: RecipeConfig, v: Variant, seed: int) -> list[str]:

@@ -11,7 +11,6 @@ the scripted baselines on identical seeded episodes at the chosen mix and radius
 from __future__ import annotations
 
 import time
-from contextlib import ExitStack
 from dataclasses import asdict, replace
 from pathlib import Path
 
@@ -20,19 +19,16 @@ from omegaconf import DictConfig
 
 from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
-from bgap.common.cluster import connected
 from bgap.common.config import app, load
 from bgap.common.runs import (
     VOLATILE,
     as_before,
     digest,
-    exclusive,
     model_file,
     save_run_metadata,
     write_atomic,
 )
 from bgap.common.vocab import POLICIES
-from bgap.experiments.batched import train_batched
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.evaluate import (
     compact,
@@ -43,8 +39,9 @@ from bgap.experiments.evaluate import (
     summarize,
     write_results,
 )
-from bgap.experiments.train import train_side_by_side
+from bgap.experiments.train import trainings
 from bgap.experiments.training import run_dir_for, training_config
+from bgap.runner.cluster import connected
 
 
 def results_dir(cfg: ExperimentConfig) -> Path:
@@ -66,20 +63,13 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
     seeds = cfg.seeds or [cfg.seed]
     pairs = [(seed, policy) for seed in seeds for policy in POLICIES]
     configs = [training_config(replace(cfg, seed=s, resume=True), p) for s, p in pairs]
-    dirs = [run_dir_for(c) for c in configs]
-    # Parallel jobs of a multirun can need the same model (the default policy of a density):
-    # one trains it, the others wait for it and reuse it. (Locks taken in one order.)
-    with ExitStack() as locks:
-        for d in sorted(set(dirs)):
-            locks.enter_context(exclusive(d, wait=True))
-        for (seed, policy), d in zip(pairs, dirs, strict=True):
-            cached = (d / "model.zip").exists()
-            print(f"[{policy} s{seed}] {'reusing' if cached else 'training'} {d}")
-        # resume=true: a training this command started and was interrupted continues
-        if cfg.learner == "batched":  # every training of the command in one learner
-            dirs = train_batched(configs)
-        else:
-            dirs = train_side_by_side(configs, cfg.workers)
+    for (seed, policy), c in zip(pairs, configs, strict=True):
+        d = run_dir_for(c)
+        print(f"[{policy} s{seed}] {'reusing' if (d / 'model.zip').exists() else 'training'} {d}")
+    # resume=true: a training this command started and was interrupted continues. Parallel
+    # jobs of a multirun can need the same model (the default policy of a density): one
+    # trains it, the others wait for it and reuse it.
+    dirs = trainings(configs, wait=True)
     models = {}
     for (seed, policy), d in zip(pairs, dirs, strict=True):
         # One seed: the family's name; several: the pipeline's <density>-<family>-s<seed>.

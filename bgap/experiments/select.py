@@ -18,9 +18,6 @@ from __future__ import annotations
 
 import argparse
 import shutil
-from concurrent.futures import ProcessPoolExecutor
-from functools import partial
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -41,9 +38,9 @@ from bgap.common.runs import (
     save_run_metadata,
     write_atomic,
 )
-from bgap.common.threads import set_threads
 from bgap.experiments.config import ExperimentConfig, compose
 from bgap.experiments.sweep import figures_with_rule, split_rule
+from bgap.runner.jobs import run_jobs
 
 __all__ = ["groups", "main", "markdown", "run_config", "runs", "select"]
 
@@ -111,13 +108,9 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
     table = runs(runs_dir)
     table["group"] = groups(table, k)
     jobs = [(row.config, str(row.run), episodes) for row in table.itertuples()]
-    if workers == 1:
-        figures = [_validate(job) for job in jobs]
-    else:  # spawned, as evaluate's workers: a fork would copy torch's OpenMP threads
-        context = get_context("spawn")
-        init = partial(set_threads, 1, 1)
-        with ProcessPoolExecutor(workers, context, initializer=init) as pool:
-            figures = list(pool.map(_validate, jobs))
+    kept = "nothing was written; the same command validates them again"
+    calls = [(job,) for job in jobs]
+    figures = run_jobs(_validate, calls, workers=workers, numba_threads=1, kept=kept)
     table["score"] = [
         policy_score(p, *split_rule(f)) for p, f in zip(table.policy, figures, strict=True)
     ]

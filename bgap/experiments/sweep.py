@@ -36,7 +36,6 @@ from stable_baselines3.common.callbacks import BaseCallback
 from bgap.agents.policies import baseline, load_model, rollout
 from bgap.analysis.stats import constrained_score, per_100km, policy_score, rule_objective
 from bgap.common import studies
-from bgap.common.cluster import ENV_ADDRESS, ClusterConfig, run_tasks
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
@@ -47,6 +46,8 @@ from bgap.experiments import trial_log
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
 from bgap.experiments.training import training_config
+from bgap.runner.cluster import ENV_ADDRESS, ClusterConfig
+from bgap.runner.jobs import run_jobs
 from bgap.traffic.scenario import env_config
 
 RULE_KEYS = tuple(
@@ -289,7 +290,7 @@ def sweep(cfg: SweepConfig, progress: bool = True) -> optuna.Study:
     if cfg.cluster.enabled:  # cfg.workers Optuna workers as Ray tasks, one shared study
         calls = [(cfg, url, studies.HEARTBEAT)] * cfg.workers
         kept = f"every finished trial is kept in the study ({url}); rerun to continue"
-        run_tasks(cfg.cluster, _sweep_worker, calls, kept=kept)
+        run_jobs(_sweep_worker, calls, cluster=cfg.cluster, kept=kept)
         return study
     run_until(
         study,

@@ -20,12 +20,7 @@ from __future__ import annotations
 import pickle
 import warnings
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from concurrent.futures.process import BrokenProcessPool
-from contextlib import ExitStack
 from dataclasses import replace
-from functools import partial
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -41,20 +36,15 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import with_features
-from bgap.common.cluster import (
-    ClusterConfig,
-    connected,
-    kept_trainings,
-    run_tasks,
-    ship_in,
-    task_folder,
-    writable,
-)
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, Interrupted
-from bgap.common.runs import CHECKPOINT_STATE, exclusive, held_by_parent, pack, unpack, write_atomic
-from bgap.common.threads import cores_per_process, set_threads
-from bgap.experiments.batched import train_batched
+from bgap.common.runs import CHECKPOINT_STATE, write_atomic
+from bgap.experiments.batched import (
+    batched_members,
+    place_members,
+    train_batched,
+    train_members_on_node,
+)
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.training import (
     build_model,
@@ -67,6 +57,10 @@ from bgap.experiments.training import (
     run_name,
     training_config,
 )
+from bgap.runner.cluster import ClusterConfig, connected, ship_folders
+from bgap.runner.jobs import run_jobs
+from bgap.runner.locks import all_exclusive
+from bgap.runner.threads import set_threads
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.simulators import make_vector_env
 from bgap.sim.vector import VectorHighway
@@ -104,17 +98,58 @@ def resume_state(model: Any, env: Any) -> dict[str, Any]:
 
 
 def train(cfg: ExperimentConfig, progress: bool = True, callbacks: Sequence = ()) -> Path:
-    """Train ``cfg.policy`` (resuming if ``cfg.resume``); returns the run folder.
-
+    """Train ``cfg.policy`` with ``cfg.seed`` (resuming if ``cfg.resume``): :func:`trainings`
+    of one, in its run folder (``run_dir``, or one named after its settings); returns it.
     ``callbacks``: extra SB3 callbacks (the sweeps' pruning evaluations)."""
-    if cfg.learner == "batched":
-        return train_batched([cfg], progress)[0]
     cfg = training_config(cfg)
-    with exclusive(Path(cfg.run_dir) if cfg.run_dir else run_dir_for(cfg)):
-        return _train(cfg, progress, callbacks)
+    if cfg.learner == "batched":
+        cfg = batched_members([cfg])[0]
+    return _trainings([cfg], [run_dir_for(cfg)], progress, callbacks)[0]
+
+
+def trainings(
+    cfgs: list[ExperimentConfig], progress: bool = True, wait: bool = False
+) -> list[Path]:
+    """Every training of ``cfgs`` (:func:`member_configs`) to the end, finished ones reused
+    and unfinished ones resumed with ``resume=true``; their run folders in ``cfgs``' order
+    (:func:`member_dirs`). ``wait``: wait for another command that holds one of the
+    folders (two jobs of a multirun that need the same training), instead of refusing."""
+    if cfgs[0].learner == "batched":
+        cfgs = batched_members(cfgs)
+        dirs = member_dirs(cfgs)
+        if len(set(dirs)) < len(dirs):
+            raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
+    else:
+        dirs = member_dirs(cfgs)
+        cfgs = [replace(c, run_dir=str(d)) for c, d in zip(cfgs, dirs, strict=True)]
+    return _trainings(cfgs, dirs, progress, wait=wait)
+
+
+def _trainings(
+    cfgs: list[ExperimentConfig],
+    dirs: list[Path],
+    progress: bool,
+    callbacks: Sequence = (),
+    wait: bool = False,
+) -> list[Path]:
+    """The one place that decides which learner trains ``cfgs`` and where: one batched
+    learner for all (``learner=batched``) or one SB3 training each, here, side by side
+    (``workers``) or as Ray tasks (``cluster``); their run folders locked here, while
+    this process writes them."""
+    first = cfgs[0]
+    with all_exclusive(dirs, wait):
+        if first.cluster.enabled:
+            with connected(first.cluster):  # one line for a cluster out of reach, first
+                _on_cluster(cfgs, dirs)
+        elif first.learner == "batched":
+            train_batched(cfgs, progress)
+        else:
+            _side_by_side(cfgs, dirs, progress, callbacks)
+    return dirs
 
 
 def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
+    """One SB3 training, in ``cfg.run_dir`` or the folder named after its settings."""
     run_dir, status = open_run_dir(cfg)
     if status == "finished":
         return run_dir
@@ -196,98 +231,76 @@ SIDE_BY_SIDE_STEPS = 5_000
 takes seconds to import torch and bgap, more than such a training lasts."""
 
 
-def train_side_by_side(cfgs: list[ExperimentConfig], workers: int) -> list[Path]:
-    """Several SB3 trainings (:func:`member_configs`), ``workers`` at a time, each in its own
-    process and run folder (:func:`member_dirs`, locked here for all of them); returns the
-    run folders in ``cfgs``' order. Each training seeds itself, so it learns the same as
-    alone. One training, or ``workers=1``: in this process, with its progress bar. (The
-    batched learner, DQN only, is faster where it applies.)"""
-    dirs = member_dirs(cfgs)
-    cfgs = [replace(c, run_dir=str(d)) for c, d in zip(cfgs, dirs, strict=True)]
-    if cfgs[0].cluster.enabled:
-        return _train_on_cluster(cfgs, dirs)
-    if workers <= 1 or len(cfgs) == 1 or cfgs[0].profile.train_steps < SIDE_BY_SIDE_STEPS:
-        return [train(c) for c in cfgs]
-    with ExitStack() as locks, side_by_side_pool(min(workers, len(cfgs))) as pool:
-        for d in sorted(set(dirs)):
-            locks.enter_context(exclusive(d))
-        futures = {pool.submit(_train_worker, c, dirs): c for c in cfgs}
-        bar = tqdm(total=len(cfgs), desc=f"{len(cfgs)} trainings, {workers} at a time",
-                   unit="training")  # fmt: skip
-        try:
-            for future in as_completed(futures):
-                c = futures[future]
-                bar.write(f"finished: {c.policy} seed {c.seed} in {future.result()}")
-                bar.update()
-        except (KeyboardInterrupt, BrokenProcessPool) as stop:
-            pool.shutdown(wait=True, cancel_futures=True)
-            why = "stopped" if isinstance(stop, KeyboardInterrupt) else "lost a process"
-            raise Interrupted(
-                f"trainings {why}; each keeps its last checkpoint in its run folder "
-                f"({dirs[0]}, ...); continue with the same command and resume=true"
-            ) from None
-        finally:
-            bar.close()
-    return dirs
+def _side_by_side(
+    cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool, callbacks: Sequence
+) -> None:
+    """SB3 trainings, ``workers`` at a time, each in its own process (one here, with its
+    progress bar, when there is one, ``workers=1``, or they are short). Each training seeds
+    itself, so it learns the same as alone."""
+    workers = cfgs[0].workers if cfgs[0].profile.train_steps >= SIDE_BY_SIDE_STEPS else 1
+    here = workers <= 1 or len(cfgs) == 1
+    bar = tqdm(total=len(cfgs), desc=f"{len(cfgs)} trainings, {workers} at a time",
+               unit="training", disable=here or not progress)  # fmt: skip
 
+    def done(k: int, run_dir: Path) -> None:
+        bar.write(f"finished: {cfgs[k].policy} seed {cfgs[k].seed} in {run_dir}")
+        bar.update()
 
-def side_by_side_pool(workers: int) -> ProcessPoolExecutor:
-    """A pool of ``workers`` spawned processes (not forked: a process that has run torch's
-    OpenMP cannot fork safely), each with one torch thread and an equal share of the cores
-    for the simulator's numba kernels: with numba's default (one thread per core) in every
-    process, two trainings on two cores ran four kernel threads and each kernel waited at
-    its barrier for a thread the other process held (``python -m bgap.bench side``)."""
-    init = partial(set_threads, 1, cores_per_process(workers))
-    return ProcessPoolExecutor(workers, get_context("spawn"), initializer=init)
-
-
-def _train_on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> list[Path]:
-    """Each unfinished training one Ray task (:mod:`bgap.common.cluster`): its run folder
-    (config, command, any checkpoint) travels to the node, which trains it there, in
-    ``cluster.storage`` when set (a retried task resumes from the lost one's checkpoints),
-    and sends the finished folder back here."""
-    cluster = cfgs[0].cluster
-    if cluster.storage:
-        writable(cluster.storage)
-    with ExitStack() as locks, connected(cluster):  # one line for a cluster out of reach
-        for d in sorted(set(dirs)):
-            locks.enter_context(exclusive(d))
-        todo = []
-        for c, d in zip(cfgs, dirs, strict=True):
-            if open_run_dir(c, d)[1] != "finished":  # writes config and command here
-                todo.append((c, d))
-        calls = [(c, pack(d), cluster.storage) for c, d in todo]
-        bar = tqdm(total=len(todo), desc=f"{len(todo)} trainings on {cluster.address}",
-                   unit="training")  # fmt: skip
-
-        def done(k: int, packed: bytes) -> None:
-            unpack(packed, todo[k][1])
-            bar.write(f"finished: {todo[k][0].policy} seed {todo[k][0].seed} in {todo[k][1]}")
-            bar.update()
-
-        run_tasks(cluster, _train_task, calls, done, kept_trainings(cluster.storage))
+    calls = [(c, progress and here, callbacks if here else ()) for c in cfgs]
+    kept = (f"each training keeps its last checkpoint in its run folder ({dirs[0]}, ...); "
+            "continue with the same command and resume=true")  # fmt: skip
+    try:
+        run_jobs(_train, calls, workers=workers, done=None if here else done, kept=kept)
+    finally:
         bar.close()
-    return dirs
 
 
-def _train_task(cfg: ExperimentConfig, packed: bytes, storage: str | None) -> bytes:
-    """On a node: the shipped run folder trained to the end (resumed from its checkpoint, or
-    from one a lost attempt left in ``storage``), sent back whole."""
-    with task_folder(storage) as base:
-        work = base / _task_folder_name(cfg)
-        ship_in(packed, work)
-        train(replace(cfg, run_dir=str(work), resume=True, cluster=ClusterConfig()), False)
-        return pack(work)
+def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> None:
+    """The unfinished trainings as Ray tasks (:func:`bgap.runner.cluster.ship_folders`): one
+    per SB3 training, one for all the members of a batched learner (one process)."""
+    todo = [
+        k
+        for k, (c, d) in enumerate(zip(cfgs, dirs, strict=True))
+        if open_run_dir(c, d)[1] != "finished"
+    ]  # fmt: skip  (writes config and command)
+    if not todo:
+        return
+    cluster = cfgs[0].cluster
+    if cfgs[0].learner == "batched":
+        members = [cfgs[k] for k in todo]
+        jobs = [((members,), [dirs[k] for k in todo])]
+        place, work, what = place_members, train_members_on_node, "batched learner"
+    else:
+        jobs = [((cfgs[k],), [dirs[k]]) for k in todo]
+        place, work, what = _place_training, _train_on_node, "training"
+    bar = tqdm(total=len(jobs), desc=f"{len(todo)} trainings as {len(jobs)} Ray tasks on "
+               f"{cluster.address}", unit="task")  # fmt: skip
+
+    def done(k: int) -> None:
+        bar.write(f"finished: {what} in {', '.join(str(d) for d in jobs[k][1])}")
+        bar.update()
+
+    try:
+        ship_folders(cluster, place, work, jobs, done)
+    finally:
+        bar.close()
 
 
-def _task_folder_name(cfg: ExperimentConfig) -> str:
+def _place_training(base: Path, cfg: ExperimentConfig) -> list[Path]:
+    """On a node: where a training's Ray task works (kept in ``cluster.storage``)."""
+    return [base / task_folder_name(cfg)]
+
+
+def _train_on_node(base: Path, cfg: ExperimentConfig) -> None:
+    """On a node: the shipped run folder trained to the end (resumed from its checkpoint,
+    or from one a lost attempt left in ``cluster.storage``)."""
+    (placed,) = _place_training(base, cfg)
+    train(replace(cfg, run_dir=str(placed), resume=True, cluster=ClusterConfig()), False)
+
+
+def task_folder_name(cfg: ExperimentConfig) -> str:
     """The folder in ``cluster.storage`` where a training's Ray task keeps its checkpoints."""
     return f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
-
-
-def _train_worker(cfg: ExperimentConfig, held: list[Path]) -> Path:
-    held_by_parent(held)  # train_side_by_side locked the run folders for this process
-    return train(cfg, progress=False)  # which sets one thread
 
 
 @app("train", "bgap.train", SCHEMAS)
@@ -297,7 +310,7 @@ def main(dcfg: DictConfig) -> None:
     if cfg.resume:  # a user's resume=true with nothing to resume is a typo, not a new run
         where = [Path(cfg.run_dir)] if cfg.run_dir else [run_dir_for(c) for c in cfgs]
         if cfg.cluster.address and cfg.cluster.storage:  # where Ray tasks keep checkpoints
-            where += [Path(cfg.cluster.storage) / _task_folder_name(c) for c in cfgs]
+            where += [Path(cfg.cluster.storage) / task_folder_name(c) for c in cfgs]
         if not any(d.exists() for d in where):
             raise ConfigError(
                 f"resume=true: nothing to resume at {where[0]} (no such folder); check "
@@ -309,11 +322,7 @@ def main(dcfg: DictConfig) -> None:
                 f"resume=true: nothing to resume at {where[0]} (no checkpoint was written "
                 "there yet); drop resume=true to start the training anew"
             )
-    if cfg.learner == "batched":
-        dirs = train_batched(cfgs)
-    else:
-        dirs = train_side_by_side(cfgs, cfg.workers)
-    for run_dir in dirs:
+    for run_dir in trainings(cfgs):
         print(f"model: {run_dir / 'model.zip'}")
 
 

@@ -29,8 +29,9 @@ from bgap.agents import zoo
 from bgap.agents.policies import as_policy, check_rows, model_path
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, check
-from bgap.common.runs import CONFIG, digest, exclusive, save_run_metadata, write_atomic
+from bgap.common.runs import CONFIG, digest, save_run_metadata, write_atomic
 from bgap.common.vocab import BASELINES
+from bgap.runner.locks import exclusive
 from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
 from bgap.sim.config import BaseConfig
 from bgap.sim.film import frames

@@ -22,10 +22,11 @@ from omegaconf import DictConfig, OmegaConf
 from bgap.agents import zoo
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, check
-from bgap.common.runs import CONFIG, MODEL, exclusive, model_file, run_folders, write_atomic
+from bgap.common.runs import CONFIG, MODEL, model_file, run_folders, write_atomic
 from bgap.common.tables import read_table
 from bgap.experiments.config import CHECKPOINTS
 from bgap.experiments.evaluate import run_records
+from bgap.runner.locks import exclusive
 
 
 @dataclass

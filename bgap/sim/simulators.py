@@ -29,7 +29,7 @@ from bgap.common.errors import ConfigError, check
 from bgap.common.vocab import BACKENDS, LABEL_CODES
 from bgap.sim.vector import RECORD_FIELDS, VectorHighway
 
-__all__ = ["RECORD_FIELDS", "make_vector_env"]
+__all__ = ["RECORD_FIELDS", "make_vec_highway", "make_vector_env"]
 
 
 def make_vector_env(
@@ -62,6 +62,29 @@ def make_vector_env(
     make = partial(_highway_env, config, record=record, render=render)
     vector = AsyncVectorEnv if asynchronous else SyncVectorEnv
     return SameStepInfo(vector([make] * num_envs, autoreset_mode=AutoresetMode.SAME_STEP))
+
+
+def make_vec_highway(
+    num_envs: int = 1,
+    config: dict[str, Any] | None = None,
+    render_mode: str | None = None,
+    record: bool = False,
+) -> VectorHighway:
+    """The vector entry point of ``bgap/BehaviorHighway-v0``: what
+    ``gym.make_vec("bgap/BehaviorHighway-v0", num_envs=N, config={...})`` returns.
+
+    ``config`` is the single environment's (``gym.make(..., config=...)``): merged into
+    :func:`bgap.traffic.scenario.default_config` and checked alike, an unknown key refused
+    with the same :class:`~bgap.common.errors.ConfigError`. The vector backend draws nothing:
+    for pictures, ``gym.make`` or ``gym.make_vec(..., vectorization_mode="sync")``
+    (highway-env's copies).
+    """
+    if render_mode is not None:
+        raise ConfigError(
+            f"render_mode={render_mode!r}: the vector backend draws nothing; use "
+            "gym.make(...) or gym.make_vec(..., vectorization_mode='sync') (highway-env)"
+        )
+    return VectorHighway(config or {}, num_envs, record=record)
 
 
 def _highway_env(config: dict[str, Any], record: bool, render: bool) -> gym.Env:

@@ -1,4 +1,4 @@
-"""Where heavy work runs: this process (the default) or a Ray cluster (issue 35).
+"""Ray: where heavy work runs when it leaves this machine.
 
     python -m bgap.evaluate ... cluster.address=local        # Ray started in-process
     python -m bgap.evaluate ... cluster.address=auto         # the cluster `ray start` made
@@ -15,8 +15,10 @@ only (``ray.init``, ``ray.remote``, ``ray.get``, ``ray.cancel``).
 
 from __future__ import annotations
 
+import io
 import os
 import socket
+import tarfile
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -26,7 +28,9 @@ from typing import Any, Optional
 
 from bgap.common.cli import ENV_COMMAND, command
 from bgap.common.errors import ConfigError, Interrupted, TrajectoryError, check
-from bgap.common.runs import CHECKPOINT_STATE, unpack
+from bgap.common.runs import CHECKPOINT_STATE, LOCK
+from bgap.runner.interrupt import CtrlC
+from bgap.runner.numerics import pinned
 
 ENV_ADDRESS, ENV_STORAGE = "BGAP_CLUSTER_ADDRESS", "BGAP_CLUSTER_STORAGE"
 """Environment variables that give ``cluster.address`` and ``cluster.storage`` when a command
@@ -99,8 +103,27 @@ def task_folder(storage: str | None) -> Iterator[Path]:
         yield writable(storage, f"on node {socket.gethostname()}") if storage else Path(tmp)
 
 
+def pack(folder: Path) -> bytes:
+    """A folder as a gzipped tar in memory (a run folder sent to or from a cluster's node);
+    an absent folder as an empty archive."""
+    buffer = io.BytesIO()
+    with tarfile.open(fileobj=buffer, mode="w:gz") as archive:
+        if folder.exists():
+            for path in sorted(folder.rglob("*")):
+                if path.name != LOCK:
+                    archive.add(path, arcname=str(path.relative_to(folder)), recursive=False)
+    return buffer.getvalue()
+
+
+def unpack(data: bytes, folder: Path) -> None:
+    """:func:`pack`'s archive into ``folder`` (created; files it holds are replaced)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    with tarfile.open(fileobj=io.BytesIO(data), mode="r:gz") as archive:
+        archive.extractall(folder, filter="data")
+
+
 def ship_in(packed: bytes, folder: Path) -> None:
-    """A run folder shipped to a node (:func:`bgap.common.runs.pack`) unpacked into
+    """A run folder shipped to a node (:func:`pack`) unpacked into
     ``folder``, unless a lost attempt left a checkpoint there to resume from."""
     if not (folder / "checkpoints" / CHECKPOINT_STATE).exists():
         unpack(packed, folder)
@@ -133,10 +156,13 @@ def _ray() -> Any:
 @contextmanager
 def connected(cfg: ClusterConfig) -> Iterator[Any]:
     """Ray connected as ``cfg`` says for the duration (None when ``cfg`` is the local path);
-    an unreachable address is one line, before any work starts."""
+    an unreachable address, or a ``storage`` that cannot be written here, is one line,
+    before any work starts."""
     if not cfg.enabled:
         yield None
         return
+    if cfg.storage:  # before Ray starts: a task would find out on its node
+        writable(cfg.storage)
     ray = _ray()
     started = not ray.is_initialized()
     if started:
@@ -225,8 +251,8 @@ def _limited(fn: Callable[..., Any], cpus: float, driver: str, *args: Any) -> An
     ``driver``: the driver's command, which the run folders the task writes record (a node's
     worker process has Ray's own command line, and another machine's environment)."""
     os.environ[ENV_COMMAND] = driver
-    # Imported here: the tasks run the simulator and the learners; this module needs neither.
-    from bgap.common.threads import set_threads
+    # Imported here: it loads torch, which a driver that only waits does not need
+    from bgap.runner.threads import set_threads
 
     threads = max(1, int(cpus))
     set_threads(threads, threads)
@@ -244,19 +270,26 @@ def run_tasks(
     order of ``calls`` (``done(k, result)`` as each arrives, for progress). Ctrl-C cancels
     the tasks still running and says so, and what was kept (``kept``)."""
     with connected(cfg) as ray:
-        remote = ray.remote(_limited).options(
-            num_cpus=cfg.cpus, num_gpus=cfg.gpus, max_retries=cfg.retries
-        )
+        options: dict[str, Any] = {
+            "num_cpus": cfg.cpus,
+            "num_gpus": cfg.gpus,
+            "max_retries": cfg.retries,
+        }
+        if kernels := pinned():  # the driver's (bgap.runner.numerics), before torch loads
+            options["runtime_env"] = {"env_vars": kernels}
+        remote = ray.remote(_limited).options(**options)
         driver = command()
         refs = [remote.remote(fn, cfg.cpus, driver, *call) for call in calls]
         index = {ref: k for k, ref in enumerate(refs)}
         results: list[Any] = [None] * len(refs)
         pending = list(refs)
         try:
-            with _ctrl_c_flag() as stopped:
+            # Ctrl-C as a flag the wait loop polls, not a KeyboardInterrupt raised wherever
+            # the main thread is (inside Ray's blocking wait, where one was once lost)
+            with CtrlC() as ctrl_c:
                 while pending:
                     ready, pending = ray.wait(pending, num_returns=1, timeout=POLL_SECONDS)
-                    if stopped():
+                    if ctrl_c.requested:
                         raise KeyboardInterrupt
                     for ref in ready:
                         k = index[ref]
@@ -282,30 +315,43 @@ POLL_SECONDS = 0.5
 """How often the driver, waiting for its tasks, looks whether Ctrl-C was pressed."""
 
 
-@contextmanager
-def _ctrl_c_flag() -> Iterator[Callable[[], bool]]:
-    """Ctrl-C noted in a flag that the driver's wait loop polls, instead of a
-    ``KeyboardInterrupt`` raised wherever the main thread happens to be (inside Ray's
-    blocking wait or one of its callbacks): once in CI such a Ctrl-C was lost, the driver
-    went on to finish its task and exited 0 (not reproduced in 10 tries here; where it went
-    is not known). The first Ctrl-C puts the previous handler back, so a second one
-    interrupts at once. Outside the main thread (no signal handlers there) the flag never
-    rises."""
-    import signal
-    import threading
+def ship_folders(
+    cfg: ClusterConfig,
+    place: Callable[..., list[Path]],
+    work: Callable[..., None],
+    jobs: Sequence[tuple[tuple, list[Path]]],
+    done: Callable[[int], None] | None = None,
+) -> None:
+    """Each job ``(args, folders)`` as one Ray task that works in run folders: the
+    ``folders`` of this machine travel to the node, where ``place(base, *args)`` names
+    their places under the task's folder ``base`` (:func:`task_folder`: ``cfg.storage``
+    when set, so that a retried task resumes from the lost one's checkpoints), ``work(base,
+    *args)`` writes them, and they come back whole over this machine's. ``done(k)`` as job
+    ``k``'s folders are back. Ctrl-C says what was kept (:func:`kept_trainings`)."""
+    calls = [
+        (place, work, [pack(d) for d in folders], cfg.storage, *args) for args, folders in jobs
+    ]
 
-    pressed = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield pressed.is_set
-        return
-    previous = signal.getsignal(signal.SIGINT) or signal.default_int_handler  # None: set in C
+    def back(k: int, packed: list[bytes]) -> None:
+        for data, folder in zip(packed, jobs[k][1], strict=True):
+            unpack(data, folder)
+        if done is not None:
+            done(k)
 
-    def note(signum: int, frame: Any) -> None:
-        pressed.set()
-        signal.signal(signal.SIGINT, previous)
+    run_tasks(cfg, _in_folders, calls, back, kept_trainings(cfg.storage))
 
-    signal.signal(signal.SIGINT, note)
-    try:
-        yield pressed.is_set
-    finally:
-        signal.signal(signal.SIGINT, previous)
+
+def _in_folders(
+    place: Callable[..., list[Path]],
+    work: Callable[..., None],
+    packed: list[bytes],
+    storage: str | None,
+    *args: Any,
+) -> list[bytes]:
+    """On a node: :func:`ship_folders`' job, its folders sent back packed."""
+    with task_folder(storage) as base:
+        placed = place(base, *args)
+        for data, folder in zip(packed, placed, strict=True):
+            ship_in(data, folder)
+        work(base, *args)
+        return [pack(folder) for folder in placed]
