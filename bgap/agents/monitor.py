@@ -321,3 +321,23 @@ class SB3Monitor(BaseCallback):
             save["replay.pkl"] = self.model.save_replay_buffer
         self.monitor.checkpoint(save, self.extra_state())
         self._last_ckpt = self.saved_at = self.num_timesteps
+
+
+class ReportSteps(BaseCallback):
+    """Sends an SB3 training's step count to ``report`` (a
+    :class:`~bgap.runner.progress.Reporter`: the parent's progress bars) every ``every``
+    steps; it reads nothing and changes nothing the training learns."""
+
+    def __init__(self, report: Callable[..., None], every: int = 500) -> None:
+        super().__init__()
+        self.report, self.every = report, every
+
+    def _on_training_start(self) -> None:
+        self._sent = self.num_timesteps
+        self.report(self.num_timesteps, start=True)
+
+    def _on_step(self) -> bool:
+        if self.num_timesteps - self._sent >= self.every:
+            self._sent = self.num_timesteps
+            self.report(self.num_timesteps)
+        return True

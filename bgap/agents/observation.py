@@ -22,7 +22,7 @@ padding). Because every column is a function of the paper's observation, the two
 agree on them whenever they agree on the observation (their parity tests), and one
 evaluation can play models with different options on the same episodes. A model records its
 options in its file (:data:`MODEL_ATTRIBUTE`); :func:`bgap.agents.policies.as_policy` adds
-the columns before each of its predictions. Our definitions (issue 32): highway-env has no
+the columns before each of its predictions. Our definitions: highway-env has no
 per-vehicle closing speed or time to collision (its ``TimeToCollision`` observation is a
 lane x speed grid for another network shape, not offered here).
 

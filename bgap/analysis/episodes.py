@@ -47,7 +47,7 @@ MIXTURE_ARMS = ("main", "authors")
 """Arms that train both families, behaviour-rich on the mixture of the paper's mixes; so does
 every learner arm (:data:`LEARNER_ARM` followed by its algorithm)."""
 LEARNER_ARM = "learner-"
-"""Prefix of the arms of issue 32's learners: ``learner-<algo>`` trains the algorithm with
+"""Prefix of the learner arms: ``learner-<algo>`` trains the algorithm with
 the network, observation and recipe its search chose (``results/recipe/<algo>``)."""
 ARM_NAMES = {
     "main": "recipe (main arm)",
@@ -163,7 +163,7 @@ def load_evaluations(
             path = next(folder / n for n in EPISODE_FILES if (folder / n).exists())
             df = read_table(path)
             df["traffic"] = forced or traffic_of(folder)
-            if "replay" in df:  # replay cells (issue 37): traffic "replay/<table>/<mode>"
+            if "replay" in df:  # replay cells: traffic "replay/<table>/<mode>"
                 replayed = df.replay.fillna("").astype(str) != ""
                 df.loc[replayed, "traffic"] = REPLAY + df.replay[replayed].astype(str)
             frames.append(df)

@@ -45,22 +45,22 @@ def readme(df, stats, table, own, sources, models, paths, yard) -> str:
         "## Does each trained policy beat idle in its own training traffic?\n",
         "Own traffic: behaviour-rich on the mixes it trained on, default in highway-env's "
         "stock traffic; largest radius; fewer collisions than the idle ego at a mean speed of "
-        f"at least {SPEED_FLOOR:g} x idle's, on the same episodes. A flagged policy's "
-        "comparisons below are not evidence about behaviour-rich training.\n",
+        f"at least {SPEED_FLOOR:g} x idle's, on the same episodes. The comparisons below of a "
+        "policy that does not are not evidence about behaviour-rich training.\n",
         own_markdown(own) if len(own) else "(no trained policies)\n",
-        (f"**{len(flagged)} flagged.**\n" if len(flagged) else "None flagged.\n"),
+        (f"**{len(flagged)} do not beat idle.**\n" if len(flagged) else "All beat idle.\n"),
         "## Against the rule-based ego, per kilometre\n",
-        "The yardstick a learned policy must beat (issue 32): the rule-based ego (IDM + "
+        "The yardstick a learned policy must beat: the rule-based ego (IDM + "
         "MOBIL over the meta-actions) on the same episodes. A slower policy drives fewer "
         "kilometres per episode, so safety is read per 100 km of ego travel (the ego's speed "
         "sampled each policy step x the step's duration) as well as per episode. A policy "
         f"**beats** the rule-based ego with fewer collisions per 100 km at a mean speed of at "
         f"least {RULE_FLOOR:g} x its speed; is *beaten* with no fewer and no faster; else "
-        "trades. Point estimates decide; intervals in `cells.csv` (`per_100km_lo`, "
-        "`per_100km_hi`) and in `figures/speed_vs_safety.png`.\n",
+        "it is *safer, slower* or *faster, less safe*. Point estimates decide; intervals in "
+        "`cells.csv` (`per_100km_lo`, `per_100km_hi`) and in `figures/speed_vs_safety.png`.\n",
         rule_markdown(stats),
         "### Does a learned policy drive as well as the hand-built driver?\n",
-        "Issue 32's two rules, per arm that trains both policies: the behaviour-rich policy "
+        "The two rules, per arm that trains both policies: the behaviour-rich policy "
         "beats the rule-based ego in the paper's dense traffic (the mean over the cells above "
         "of collisions per 100 km and of speed: fewer collisions at a speed of at least "
         f"{RULE_FLOOR:g} x its speed), and the default policy keeps up with it in stock "
@@ -74,7 +74,7 @@ def readme(df, stats, table, own, sources, models, paths, yard) -> str:
         yardstick_markdown(stats, table, yard) if len(table) else "(no claims: one family only)\n",
         "## In observed traffic (replayed tables)\n",
         "The paper's premise is that behaviour-rich training prepares a policy for real "
-        "traffic. Here every policy drives among recorded vehicles (issue 37): tables of SUMO "
+        "traffic. Here every policy drives among recorded vehicles: tables of SUMO "
         "runs with bgap's fixed validation drivers (`replay_data@<table>`), the ego put in "
         "place of a recorded vehicle for at most the episode's duration; `log`: the recorded "
         "vehicles follow their log whatever the ego does (a crash may be a log vehicle "

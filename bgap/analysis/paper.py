@@ -102,7 +102,7 @@ CLAIMS = _claims_for
 
 
 def replay_claim(traffic: str) -> Claim:
-    """The paper's premise read in observed traffic (issue 37; not in the paper): a replayed
+    """The paper's premise read in observed traffic (not in the paper): a replayed
     table (``traffic`` = ``replay/<table>/<mode>``), each family's models of the table's
     density on the same seeded windows; different trainings, so unpaired."""
     table, mode = traffic.split("/")[1:3]

@@ -222,7 +222,7 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
 
 
 def yardstick(yard: Yardstick, path: Path) -> bool:
-    """Issue 32's two rules at a glance, per arm that trains both families
+    """The two rules against the rule-based ego at a glance, per arm that trains both families
     (:func:`bgap.analysis.tables.yardstick_cells`): left, the behaviour-rich policy's
     collisions per 100 km against its speed pooled over the dense cells (95% intervals across
     training seeds); right, the default policy's collision % against its speed in dense stock
@@ -286,7 +286,7 @@ def yardstick(yard: Yardstick, path: Path) -> bool:
         ax.set_title(title, fontsize=10)
         # below the panel: inside it would hide points
         ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
-    fig.suptitle("Against the rule-based ego (issue 32's two rules; 95% intervals)", fontsize=11)
+    fig.suptitle("Against the rule-based ego (the two rules; 95% intervals)", fontsize=11)
     fig.tight_layout()
     write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)

@@ -284,27 +284,27 @@ def seed_rate_interval(
 
 RULE_FLOOR = 0.95
 """The speed a learned policy must keep, as a share of the rule-based ego's, to count as
-beating it (issue 32's yardstick)."""
+beating it (the rule-based ego as yardstick)."""
 
 
 def versus_rule(per100: float, speed: float, rule_per100: float, rule_speed: float) -> str:
     """A policy read against the rule-based ego on the same episodes, by point estimates:
     ``beats`` it with fewer collisions per 100 km at a mean speed of at least
     :data:`RULE_FLOOR` x its speed; is ``beaten`` by it with no fewer collisions per 100 km
-    and no higher speed; else ``trades`` (safer but slower, or faster but less safe)."""
-    if per100 < rule_per100 and speed >= RULE_FLOOR * rule_speed:
-        return "beats"
-    if per100 >= rule_per100 and speed <= rule_speed:
-        return "beaten"
-    return "trades"
+    and no higher speed; else it trades one for the other: ``safer, slower`` (fewer
+    collisions per 100 km, under the floor's speed) or ``faster, less safe`` (a higher
+    speed, no fewer collisions per 100 km)."""
+    if per100 < rule_per100:
+        return "beats" if speed >= RULE_FLOOR * rule_speed else "safer, slower"
+    return "beaten" if speed <= rule_speed else "faster, less safe"
 
 
 STOCK_MARGIN = 1.0
 """Percentage points of episodes a default policy may crash in beyond the rule-based ego's,
-in stock traffic, and still meet issue 32's stock rule."""
+in stock traffic, and still meet the stock rule."""
 
 SHORT_PENALTY = 1000.0
-"""What issue 32's objectives add to a speed shortfall: above any collision excess, so a
+"""What the recipe objectives add to a speed shortfall: above any collision excess, so a
 policy that keeps the pace ranks above any that does not."""
 
 
@@ -324,7 +324,7 @@ def keeps_up(
     floor: float = RULE_FLOOR,
     margin: float = STOCK_MARGIN,
 ) -> bool:
-    """Issue 32's stock rule: a default policy crashes in at most ``margin`` points more
+    """The stock rule: a default policy crashes in at most ``margin`` points more
     episodes than the rule-based ego, at a mean speed of at least ``floor`` x its (the same
     episodes)."""
     return collision_pct <= rule_collision_pct + margin and speed >= floor * rule_speed
@@ -338,7 +338,7 @@ def rule_objective(
     floor: float = RULE_FLOOR,
     margin: float = STOCK_MARGIN,
 ) -> float:
-    """Issue 32's recipe objective (lower is better), scoring both policies of a recipe
+    """The recipe objective (lower is better), scoring both policies of a recipe
     against the rule-based ego on the same validation episodes. Each argument holds
     ``collision_pct``, ``per_100km`` and ``avg_speed``: the behaviour-rich policy in its
     traffic, the rule-based ego there, the default policy in stock traffic, the rule-based
@@ -379,7 +379,7 @@ def policy_score(
 def rule_excess(
     policy: str, mine: dict[str, float], rule: dict[str, float], margin: float = STOCK_MARGIN
 ) -> float:
-    """One policy's term of :func:`rule_objective` (below 0: its rule of issue 32 is met):
+    """One policy's term of :func:`rule_objective` (below 0: its rule is met):
     behaviour-rich, its collisions per 100 km minus the rule-based ego's; ``default`` (in
     stock traffic), its collision % minus the rule-based ego's minus ``margin``."""
     if policy == "default":

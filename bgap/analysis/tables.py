@@ -126,7 +126,7 @@ def own_markdown(own: pd.DataFrame) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in own.sort_values(["arm", "family"], key=_arm_order).itertuples():
-        verdict = "beats idle" if r.beats_idle else "**FLAGGED: does not beat idle**"
+        verdict = "beats idle" if r.beats_idle else "**does not beat idle**"
         split, idle_split = (
             " / ".join(f"{getattr(r, f'{who}{k}_pct', float('nan')):.1f}"
                        for k in ("rear_end", "rear_ended", "lane_change"))
@@ -193,7 +193,8 @@ def departures_markdown(models: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-SYMBOLS = {"beats": "**beats**", "beaten": "beaten", "trades": "trades"}
+SYMBOLS = {"beats": "**beats**", "beaten": "beaten", "safer, slower": "safer, slower",
+           "faster, less safe": "faster, less safe"}  # fmt: skip
 
 
 def rule_markdown(stats: pd.DataFrame) -> str:
@@ -301,7 +302,7 @@ def _beside_rule(table: pd.DataFrame, arm: str, family: str):
 
 
 class Yardstick(NamedTuple):
-    """What issue 32's two rules are read on, by the results page's table and
+    """What the two rules are read on, by the results page's table and
     ``figures/yardstick.png`` (:func:`yardstick_cells`)."""
 
     arms: list[str]
@@ -327,7 +328,7 @@ def yardstick_cells(stats: pd.DataFrame, df: pd.DataFrame) -> Yardstick:
 
 
 def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame, yard: Yardstick) -> str:
-    """Issue 32's question per arm that trains both families on the mixture
+    """The two rules, read per arm that trains both families on the mixture
     (:func:`yardstick_cells`): does its behaviour-rich policy beat the rule-based ego in the
     paper's dense traffic (pooled over the cells, :func:`pooled_intervals`: fewer collisions
     per 100 km at 0.95 x its speed, :func:`bgap.analysis.stats.versus_rule`), and does its

@@ -1,5 +1,5 @@
 """Kinematic statistics of any trajectory table, per driver class, and how far two tables'
-statistics lie apart: what calibration to observed traffic compares (issue 18), and what a
+statistics lie apart: what calibration to observed traffic compares, and what a
 user can check on their own data.
 
 The statistics, each a sample per class (documented choices are ours unless a source is

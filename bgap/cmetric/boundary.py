@@ -7,7 +7,7 @@ The boundary is the aggressiveness above which a vehicle reads aggressive: the t
 that maximises Youden's J (true minus false positive rate: balanced accuracy, whatever the
 share of aggressive drivers) on the tables' even episodes, pooled, the part CMetric's search
 tunes on; its balanced accuracy is reported on the odd episodes too. A table without labels
-is then read with it (a replayed table's aggressive share, issue 37), never with its own
+is then read with it (a replayed table's aggressive share), never with its own
 median, which would make every table half aggressive. Vehicles without evidence (no score)
 are left out of both. Writes ``boundary.json``, ``scores.png`` (each class's scores and the
 boundary), ``command.txt`` and the preset (:class:`ClassBoundary`).

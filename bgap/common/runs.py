@@ -101,7 +101,7 @@ ADDED_WITH_ALGOS = {
     "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5, "observation": [],
 }  # fmt: skip
 """The ``agent`` settings that came with the algorithms beside DQN and the observation
-options (issue 32), at the values every earlier training had: read into configs saved
+options (the learner arms), at the values every earlier training had: read into configs saved
 before them, and left out of a training's identity at these values (its run folder keeps
 its name)."""
 ADDED_LATER |= {f"agent.{k}": v for k, v in ADDED_WITH_ALGOS.items()}

@@ -56,7 +56,7 @@ PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
 """Aggressive fractions of the paper's evaluation grid."""
 SPEED_FLOOR = 0.9
 """A policy beats the idle ego when it crashes less at a mean speed of at least this fraction
-of idle's on the same episodes: safety bought by crawling is no win (ours; issue 20). The
+of idle's on the same episodes: safety bought by crawling is no win (ours). The
 same rule ranks recipe candidates (:func:`bgap.analysis.stats.constrained_score`)."""
 ENDINGS = ("timeout", "rear_end", "rear_ended", "lane_change", "other")
 """How an episode ended: it ran its full duration; the ego ran into a vehicle ahead; a

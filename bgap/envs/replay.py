@@ -1,4 +1,4 @@
-"""Replayed traffic on highway-env's road (issue 37): the reference replay.
+"""Replayed traffic on highway-env's road: the reference replay.
 
 A :class:`ReplayVehicle` is a recorded vehicle on highway-env's road: frame by frame it takes
 its recorded state (:class:`bgap.traffic.replay.RecordedScene`) until, in ``reactive`` mode, it

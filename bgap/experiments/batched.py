@@ -92,7 +92,8 @@ class _Group:
 
 def batched_members(cfgs: Sequence[ExperimentConfig]) -> list[ExperimentConfig]:
     """``cfgs`` as the members of one batched learner, or one line saying why they cannot
-    be: the same agent, profile and backend (any policy family, seed and traffic)."""
+    be: the same agent, profile and backend (any policy family, seed and traffic), each
+    in a run folder of its own."""
     check(len(cfgs) >= 1, "seeds", [], "the batched learner needs at least one training")
     cfgs = [replace(training_config(c), learner="batched") for c in cfgs]
     first = cfgs[0]
@@ -103,6 +104,9 @@ def batched_members(cfgs: Sequence[ExperimentConfig]) -> list[ExperimentConfig]:
                     f"members of one batched learner need the same {key}: seed {c.seed} "
                     f"({c.policy}) differs from seed {first.seed} ({first.policy})"
                 )
+    dirs = member_dirs(cfgs)
+    if len(set(dirs)) < len(dirs):
+        raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
     return cfgs
 
 
@@ -120,8 +124,6 @@ def train_batched(
     a cluster.)"""
     cfgs = batched_members(cfgs)
     dirs = member_dirs(cfgs)
-    if len(set(dirs)) < len(dirs):
-        raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
     _open_and_train(cfgs, dirs, progress, sb3_streams)
     return dirs  # every member's, the finished ones' too
 

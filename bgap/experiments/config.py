@@ -87,7 +87,7 @@ class GridConfig:
     """Whether the grid holds the simulated cells (mixes x densities x radii); ``false``:
     only its replays."""
     replays: list[str] = field(default_factory=list)
-    """Cells of replayed traffic (issue 37, :mod:`bgap.traffic.replay`): trajectory tables,
+    """Cells of replayed traffic (:mod:`bgap.traffic.replay`): trajectory tables,
     each ``DENSITY:PATH`` (the ``env`` preset the cell runs: its observation, so the models of
     that density play it, and its duration) or ``PATH`` (the run's own density)."""
     modes: list[str] = field(default_factory=lambda: ["log"])
@@ -341,7 +341,7 @@ class RecipeConfig(SweepConfig):
     than ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's speed, on stock
     validation episodes) after those that meet it: the recipe is shared by both policies."""
     stock_max_collision_pct: float = 50.0
-    """The stock rule's collision bound (issue 20: under half of the episodes)."""
+    """The stock rule's collision bound (under half of the episodes)."""
     levers: list[str] = field(default_factory=list)
     """Mode ``rule``: settings of the chosen recipe switched one lever at a time (for example
     ``agent.extractor=flatten``, ``agent.observation=[]``, or several settings at once:

@@ -192,14 +192,14 @@ def rehearsal(params: dict) -> None:
     validate = " profile.eval_every_episodes=2 profile.eval_during_training=2"
     for item in params["study"].values():
         item.update(seeds="[0]", settings=item["settings"] + validate)
-    for item in params.get("learner_arms", {}).values():  # (none before issue 32's arms)
+    for item in params.get("learner_arms", {}).values():  # (older commits have no learner arms)
         item.update(seeds="[0]", settings=item["settings"] + validate, profile="tiny")
     for item in params.get("selections", {}).values():  # one seed per arm: groups of one
         item.update(group=1, episodes=2)
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"].update(check_seeds="[0,1]", sweep_episodes=4)
-    if "learner_recipe" in params:  # (commits before issue 32's searches have none)
+    if "learner_recipe" in params:  # (older commits have no learner recipes)
         learner = params["learner_recipe"]
         learner.update(trials=2, candidates=1, check_episodes=10)
         learner.update(check_seeds="[0,1]", sweep_episodes=4)
@@ -210,7 +210,7 @@ def rehearsal(params: dict) -> None:
                 item["profile"] = "tiny"
     params["parity"] = {"episodes": 2, "duration": 2}
     params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
-    if "replay" in params:  # (commits before issue 37's replay cells have none)
+    if "replay" in params:  # (older commits have no replay cells)
         params["replay"].update(scenes=1, duration=30)
     search = params["cmetric_search"]
     search.update(trials=2, radii="[null]")

@@ -20,7 +20,7 @@ Three steps, all on validation episodes (seeds ``val_seed + k``; the test episod
    kept in the study (with its validation curve), so a check resumes from the study's trial
    log (``bgap.pipeline trials``) on a machine without its run folders.
    With ``stock_check=true`` each candidate's default policy is trained too (stock traffic,
-   the same seeds), and candidates whose default policy misses issue 20's stock rule (under
+   the same seeds), and candidates whose default policy misses the stock rule (under
    half of the episodes crashed, at 0.9 x idle's speed) rank after those that meet it.
 3. **Presets**: the chosen candidate's reward and agent groups as
    ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` under ``preset_dir``
@@ -306,7 +306,7 @@ def markdown_by_rule(cfg: RecipeConfig, summary: pd.DataFrame, params: dict) -> 
         "",
         f"Learner: {cfg.agent.algo} (agent={cfg.agent.name}). Traffic: {cfg.env.name}, mix "
         f"sampling {cfg.mix_sampling} for the behaviour-rich policy; highway-env's stock "
-        "traffic for the default policy. Objective (issue 32, fixed before the search): each "
+        "traffic for the default policy. Objective (fixed before the search): each "
         f"policy at {cfg.rule_floor:g} x the rule-based ego's speed or more, then the worse of "
         "the behaviour-rich policy's collisions per 100 km minus the rule-based ego's and the "
         "default policy's collision % minus the rule-based ego's minus "
@@ -341,7 +341,7 @@ STOCK_KEYS = ("stock_collision_pct", "stock_avg_speed", "stock_idle_collision_pc
 
 
 def meets_stock_rule(cfg: RecipeConfig, row: Any) -> bool:
-    """Issue 20's rule for the default policy in its own traffic: fewer than
+    """The stock rule for the default policy in its own traffic: fewer than
     ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's mean speed."""
     return bool(
         row["stock_collision_pct"] < cfg.stock_max_collision_pct
@@ -381,7 +381,7 @@ def markdown_levers(
         "",
         f"Each row trains the chosen recipe with one setting changed, on the check's "
         f"{len(cfg.check_seeds)} training seeds x {cfg.check_episodes} validation episodes per "
-        "seed and policy, scored by the search's objective (below 0: both of issue 32's rules "
+        "seed and policy, scored by the search's objective (below 0: both rules "
         "are met). The change in objective is the row's minus the recipe's: positive, the "
         "lever as the recipe has it helps. Intervals: 95% t across seeds.",
         "",

@@ -137,7 +137,7 @@ def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
             continue
         i = idle.loc[key]
         beats = beats_idle(r.collision_pct, r.avg_speed, i.collision_pct, i.avg_speed)
-        verdict = "beats idle" if beats else "FLAGGED: does not beat idle"
+        verdict = "beats idle" if beats else "does not beat idle (read its comparisons with care)"
         lines.append(
             f"{r.policy} in its own traffic (mix {r.mix:g}): {r.collision_pct:.1f}% collisions, "
             f"{r.avg_speed:.2f} m/s; idle {i.collision_pct:.1f}%, {i.avg_speed:.2f} m/s: {verdict}"
@@ -148,7 +148,8 @@ def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
 def rule_verdicts(summary) -> list[str]:
     """A line per trained policy and cell read against the rule-based ego on the same
     episodes: collisions per 100 km and speed, and whether it beats the rule-based ego, is
-    beaten by it, or trades (:func:`bgap.analysis.stats.versus_rule`)."""
+    beaten by it, or trades speed for safety either way
+    (:func:`bgap.analysis.stats.versus_rule`)."""
     if "per_100km" not in summary or "rule" not in set(summary.policy):
         return []
     lines = []
@@ -170,7 +171,8 @@ def rule_verdicts(summary) -> list[str]:
 VERDICTS = {
     "beats": f"beats it (safer per km at >= {RULE_FLOOR:g} x its speed)",
     "beaten": "beaten by it (no safer per km, no faster)",
-    "trades": "trades (safer but slower, or faster but less safe)",
+    "safer, slower": f"safer per km but slower (under {RULE_FLOOR:g} x its speed)",
+    "faster, less safe": "faster but no safer per km",
 }
 
 

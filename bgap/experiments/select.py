@@ -4,7 +4,7 @@ A learner that trains ``K`` seeds and keeps the one its validation prefers. Per 
 policy family, the run folders under ``RUNS`` (in the order of their training seeds) fall
 into consecutive groups of ``K``; each run's validation-chosen checkpoint plays
 ``--episodes`` validation episodes of its own training traffic (seeds ``val_seed + k``, apart
-from the test's) beside the rule-based ego, and is scored by its half of issue 32's recipe
+from the test's) beside the rule-based ego, and is scored by its half of the recipe
 objective (:func:`bgap.analysis.stats.policy_score`). The lowest score of each group is kept
 (the lower seed on a tie).
 
@@ -134,7 +134,7 @@ def markdown(table: pd.DataFrame, k: int, episodes: int) -> str:
         "",
         f"Each run's validation-chosen checkpoint on {episodes} validation episodes of its own "
         "training traffic, beside the rule-based ego on the same episodes; score: its half of "
-        "issue 32's recipe objective (behaviour-rich: collisions per 100 km minus the "
+        "the recipe objective (behaviour-rich: collisions per 100 km minus the "
         "rule-based ego's; default: collision % minus the rule-based ego's minus "
         f"{STOCK_MARGIN:g}; {SHORT_PENALTY:g} + the shortfall below {RULE_FLOOR:g} x its "
         "speed). Kept: the lowest score of each group.",

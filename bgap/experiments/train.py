@@ -31,6 +31,7 @@ from stable_baselines3.common.vec_env import VecMonitor
 from tqdm import TqdmExperimentalWarning, tqdm
 
 from bgap.agents.monitor import (
+    ReportSteps,
     SB3Monitor,
     TrainingMonitor,
     plot_learning_curves,
@@ -60,6 +61,7 @@ from bgap.experiments.training import (
 from bgap.runner.cluster import ClusterConfig, connected, ship_folders
 from bgap.runner.jobs import run_jobs
 from bgap.runner.locks import all_exclusive
+from bgap.runner.progress import JobBars
 from bgap.runner.threads import set_threads
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.simulators import make_vector_env
@@ -117,8 +119,6 @@ def trainings(
     if cfgs[0].learner == "batched":
         cfgs = batched_members(cfgs)
         dirs = member_dirs(cfgs)
-        if len(set(dirs)) < len(dirs):
-            raise ConfigError(f"two members share a run folder: {[str(d) for d in dirs]}")
     else:
         dirs = member_dirs(cfgs)
         cfgs = [replace(c, run_dir=str(d)) for c, d in zip(cfgs, dirs, strict=True)]
@@ -234,25 +234,27 @@ takes seconds to import torch and bgap, more than such a training lasts."""
 def _side_by_side(
     cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool, callbacks: Sequence
 ) -> None:
-    """SB3 trainings, ``workers`` at a time, each in its own process (one here, with its
-    progress bar, when there is one, ``workers=1``, or they are short). Each training seeds
+    """SB3 trainings, ``workers`` at a time, each in its own process with a progress bar
+    here (steps, time left); one after the other here when there is one, ``workers=1``, or
+    they are short. Each training seeds
     itself, so it learns the same as alone."""
     workers = cfgs[0].workers if cfgs[0].profile.train_steps >= SIDE_BY_SIDE_STEPS else 1
     here = workers <= 1 or len(cfgs) == 1
-    bar = tqdm(total=len(cfgs), desc=f"{len(cfgs)} trainings, {workers} at a time",
-               unit="training", disable=here or not progress)  # fmt: skip
-
-    def done(k: int, run_dir: Path) -> None:
-        bar.write(f"finished: {cfgs[k].policy} seed {cfgs[k].seed} in {run_dir}")
-        bar.update()
-
-    calls = [(c, progress and here, callbacks if here else ()) for c in cfgs]
+    names = [f"{c.policy} s{c.seed}" for c in cfgs]
+    steps = [c.profile.train_steps for c in cfgs]
     kept = (f"each training keeps its last checkpoint in its run folder ({dirs[0]}, ...); "
             "continue with the same command and resume=true")  # fmt: skip
-    try:
+    with JobBars(names, steps, enabled=progress and not here) as bars:
+
+        def done(k: int, run_dir: Path) -> None:
+            bars.write(f"finished: {cfgs[k].policy} seed {cfgs[k].seed} in {run_dir}")
+
+        def extra(k: int) -> Sequence:
+            report = bars.reporter(k)
+            return callbacks if here else () if report is None else (ReportSteps(report),)
+
+        calls = [(c, progress and here, extra(k)) for k, c in enumerate(cfgs)]
         run_jobs(_train, calls, workers=workers, done=None if here else done, kept=kept)
-    finally:
-        bar.close()
 
 
 def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> None:

@@ -2,7 +2,7 @@
 
 An Optuna study lives in a database (``optuna.db`` under the run's root) that does not
 outlive its machine and that the project does not commit. A search longer than a working
-session (issue 32's recipe per learner: hours each) stays resumable from git by committing
+session (the recipe per learner: hours each) stays resumable from git by committing
 its finished trials (parameters with their distributions, values, state, attributes,
 intermediate values): :func:`save` writes them, :func:`restore` adds them to the same study
 in a fresh database, and the search's own command then continues from there. A trial still

@@ -1,4 +1,4 @@
-"""Replayed traffic: a trajectory table as the ego's surroundings (issue 37).
+"""Replayed traffic: a trajectory table as the ego's surroundings.
 
     traffic=replay traffic.table=PATH traffic.mode=log|reactive
 

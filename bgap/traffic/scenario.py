@@ -170,7 +170,7 @@ def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
 
 
 FAST_SIMULATION_FREQUENCY = 10
-"""The opt-in fast mode (ours, issue 17): ``env.simulation_frequency=10`` instead of
+"""The opt-in fast mode (ours): ``env.simulation_frequency=10`` instead of
 highway-env's 15 Hz, a third fewer frames per policy step on either backend. Its traffic
 differs from highway-env's frame by frame, but on the parity study's episodes (dense, mixes
 0, 0.5 and 1, the vector backend against the highway-env rows of ``results/parity``) every

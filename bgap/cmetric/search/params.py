@@ -39,7 +39,7 @@ class CMetricSearchConfig:
     crops_tune: bool = True
     """False: the crops (a radius that is not null) of ``data_dir``'s tables only validate;
     the whole-road tables alone tune. A crop of a few dozen vehicles has an AUC standard
-    error of ~0.08 and, as the worst part, decided the whole search (issue 16)."""
+    error of ~0.08 and, as the worst part, decided CMetric's whole parameter search."""
     cmetric: CMetricConfig = field(default_factory=CMetricConfig)
     """The starting preset: trial 0 evaluates it, and settings not searched keep its values."""
     trials: int = 60
