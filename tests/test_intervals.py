@@ -15,6 +15,7 @@ from bgap.analysis.intervals import (
     difference_coverage,
     difference_table,
     log_rate_interval,
+    paired_table,
     rate_interval,
 )
 
@@ -113,14 +114,17 @@ def test_coverage_is_derandomised():
 def test_every_printed_interval_covers_at_5_and_10_seeds():
     """1,000 simulated studies per setting: 3, 5 and 10 seeds; rates of 0.5%, 5% and 30%;
     rare lognormal seed rates; seeds alike in episodes of unequal difficulty; one cell (100
-    shared episodes) and one claim's pool (700); differences between two arms. At 5 and 10
+    shared episodes) and one claim's pool (700); differences between two arms and between
+    two conditions of the same models (whose skewed-seed setting is reported in
+    docs/intervals.md, not bounded: no method tried reaches 93% there). At 5 and 10
     seeds the printed intervals cover at least 93% and are at most about twice as wide as
     the oracle's (2.03 at 0.5% over 700 episodes and 5 seeds, the widest); 3 seeds is
     reported, not bounded."""
     rows = coverage_table(1000, episodes=100) + coverage_table(1000, episodes=700)
     rows += difference_table(1000)
+    rows += [r for r in paired_table(1000) if "lognormal" not in r["setting"]]
     printed = [r for r in rows if r["method"] == "printed" and r["seeds"] >= 5]
-    assert len(printed) == 2 * 5 * 2 + 4 * 2
+    assert len(printed) == 2 * 5 * 2 + 4 * 2 + 3 * 2
     low = [r for r in printed if r["coverage"] < 0.93]
     assert not low, low
     wide = [r for r in printed if r["width"] > 2.05]

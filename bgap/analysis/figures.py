@@ -22,11 +22,13 @@ pipeline's stage: ``results/``):
   ``paper_vs_ours.png`` (the paper's bars beside ours), ``ablation.png`` (training mix);
 - ``README.md`` and ``metrics.json``.
 
-Statistics (:mod:`bgap.analysis.stats`): training seeds are the independent units. A difference
-between two policy families is a two-level bootstrap over their (unrelated) seeds; one model
-in two traffic conditions is paired by training seed; two perception radii play the same
-scenes, so their per-episode differences are bootstrapped. Holm's correction runs across the
-whole claims table; the verdict follows from the corrected p-values.
+Statistics (:mod:`bgap.analysis.intervals`): training seeds are the independent units, and
+every seed plays the same episodes. A difference between two policy families is a two-way
+random-effects interval over their (unrelated) seeds and the shared episodes; one model in
+two traffic conditions is paired by training seed; two perception radii play the same
+scenes, so their per-scene differences are read. Holm's correction runs within each claim
+family (the main arm's claims confirmatory, every other arm's exploratory); the verdict
+follows from the corrected p-values.
 """
 
 from __future__ import annotations

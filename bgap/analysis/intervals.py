@@ -26,7 +26,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import ndtri, stdtrit
+from scipy.special import ndtri, stdtr, stdtrit
 
 from bgap.analysis.stats import seed_bootstrap_diff, seed_rate_interval, wilson_interval
 
@@ -86,11 +86,10 @@ def crossed_interval(y: np.ndarray, level: float = LEVEL) -> tuple[float, float,
     return mean, mean - half, mean + half
 
 
-def crossed_difference_interval(
-    a: np.ndarray, b: np.ndarray, level: float = LEVEL
-) -> tuple[float, float, float]:
-    """Difference of the means of two arms whose seeds are unrelated trainings but play the
-    same episodes (``a[s, e]`` and ``b[t, e]``, columns aligned), and its interval.
+def crossed_difference_variance(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """Variance and degrees of freedom of the difference of the means of two arms whose
+    seeds are unrelated trainings but play the same episodes (``a[s, e]`` and ``b[t, e]``,
+    columns aligned).
 
     The episode component is shared: what varies with the episodes drawn is each episode's
     difference of the two arms' seed means, so its term is read from those differences;
@@ -99,6 +98,8 @@ def crossed_difference_interval(
     if a.shape[1] != b.shape[1]:
         raise ValueError(f"the arms play different episodes: {a.shape[1]} vs {b.shape[1]}")
     (sa, e), sb = a.shape, b.shape[0]
+    if min(sa, sb) < 2:
+        return float("nan"), float("nan")
     ms_sa, df_sa, _, _, ms_ra, df_ra = _components(a)
     ms_sb, df_sb, _, _, ms_rb, df_rb = _components(b)
     d = a.mean(axis=0) - b.mean(axis=0)
@@ -115,9 +116,74 @@ def crossed_difference_interval(
     floor = max(welch, ms_d / e)
     if var < floor:
         var, df = floor, float(min(df_sa, df_sb))
-    half = _t(max(df, 1.0), level) * np.sqrt(var)
-    diff = float(a.mean() - b.mean())
-    return diff, diff - half, diff + half
+    return float(var), max(float(df), 1.0)
+
+
+def paired_difference_variance(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
+    """Variance and degrees of freedom of the difference of the means of the same models
+    (rows: training seeds, aligned) in two conditions, each condition's episodes shared by
+    every seed (``a[s, e]``, ``b[s, f]``): the paired seeds' differences carry the seed
+    term, each condition's own episodes add theirs, Var = var(d_s)/S + s2_ea/E_a + s2_eb/E_b."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    if a.shape[0] != b.shape[0]:
+        raise ValueError(f"paired conditions need the same seeds: {a.shape[0]} vs {b.shape[0]}")
+    s = a.shape[0]
+    if s < 2:
+        return float("nan"), float("nan")
+    d = a.mean(axis=1) - b.mean(axis=1)
+    terms = [(float(np.var(d, ddof=1)) / s, s - 1)]
+    for y in (a, b):
+        _, _, ms_e, df_e, ms_r, df_r = _components(y)
+        terms += [(ms_e / (s * y.shape[1]), df_e), (-ms_r / (s * y.shape[1]), df_r)]
+    var, df = sum(v for v, _ in terms), _satterthwaite(terms)
+    if var < terms[0][0]:  # the paired seeds' term alone is a lower bound in expectation
+        var, df = terms[0][0], float(s - 1)
+    return float(var), max(float(df), 1.0)
+
+
+def t_test(
+    estimate: float, var: float, df: float, null: float = 0.0, level: float = LEVEL
+) -> tuple[float, float, float]:
+    """Student t interval at ``level`` of an estimate of variance ``var`` on ``df`` degrees
+    of freedom, and the two-sided p-value of ``null`` (analytic: no Monte Carlo error at
+    Holm's levels). A zero variance gives a point and p = 1 at the null, 0 elsewhere;
+    an unknown one (fewer than two seeds) gives NaN."""
+    if not np.isfinite(var):
+        return float("nan"), float("nan"), float("nan")
+    if var <= 0:
+        return estimate, estimate, 1.0 if estimate == null else 0.0
+    se = float(np.sqrt(var))
+    half = _t(df, level) * se
+    p = float(2 * stdtr(df, -abs(estimate - null) / se))
+    return estimate - half, estimate + half, p
+
+
+def crossed_difference_interval(
+    a: np.ndarray, b: np.ndarray, level: float = LEVEL
+) -> tuple[float, float, float]:
+    """Difference of two arms' means on the same episodes and its interval
+    (:func:`crossed_difference_variance`)."""
+    diff = float(np.mean(a) - np.mean(b))
+    lo, hi, _ = t_test(diff, *crossed_difference_variance(a, b), level=level)
+    return diff, lo, hi
+
+
+def rate_test(
+    y: np.ndarray, null: float, level: float = LEVEL
+) -> tuple[float, float, float, float]:
+    """A rate (0/1 ``y[s, e]``) against a fixed number: :func:`rate_interval` at ``level``
+    and the p-value of ``null``, the smallest alpha whose interval at 1 - alpha excludes
+    it (bisection: the interval widens with its level), so that p and interval agree."""
+    mean, lo, hi = rate_interval(y, level)
+    inside = lambda alpha: (lambda r: r[1] <= null <= r[2])(rate_interval(y, 1 - alpha))  # noqa: E731
+    if inside(1 - 1e-9):
+        return mean, lo, hi, 1.0
+    a, b = 1e-12, 1 - 1e-9  # excluded at b, assumed excluded below 1e-12 too
+    if inside(a):
+        for _ in range(50):
+            m = (a + b) / 2
+            a, b = (m, b) if inside(m) else (a, m)
+    return mean, lo, hi, float(b)
 
 
 def log_rate_interval(y: np.ndarray, level: float = LEVEL) -> tuple[float, float, float]:
@@ -132,7 +198,12 @@ def log_rate_interval(y: np.ndarray, level: float = LEVEL) -> tuple[float, float
     m, s2 = x.mean(), x.var(ddof=1)
     centre = m + s2 / 2
     half = _t(s - 1, level) * np.sqrt(s2 / s + s2**2 / (2 * (s - 1)))
-    return float(y.mean()), float(np.exp(centre - half)), float(np.exp(centre + half))
+    # a rate is at most 1 (and exp would overflow at the tiny alphas of Holm's steps)
+    return (
+        float(y.mean()),
+        float(np.exp(min(centre - half, 0.0))),
+        float(np.exp(min(centre + half, 0.0))),
+    )
 
 
 def rate_interval(y: np.ndarray, level: float = LEVEL) -> tuple[float, float, float]:
@@ -204,13 +275,16 @@ class Design:
         k = 1 / self.episode_cv**2
         return rng.gamma(k, 1 / k, size=n)
 
-    def draw(self, rng: np.random.Generator) -> np.ndarray:
-        p = np.minimum(
-            self.seed_rates(rng, self.seeds)[:, None]
-            * self.episode_factors(rng, self.episodes)[None, :],
-            1.0,
-        )
+    @staticmethod
+    def play(rng: np.random.Generator, rates: np.ndarray, factors: np.ndarray) -> np.ndarray:
+        """0/1 crashes of seeds of these ``rates`` in episodes of these difficulty
+        ``factors``."""
+        p = np.minimum(rates[:, None] * factors[None, :], 1.0)
         return (rng.random(p.shape) < p).astype(float)
+
+    def draw(self, rng: np.random.Generator) -> np.ndarray:
+        rates = self.seed_rates(rng, self.seeds)
+        return self.play(rng, rates, self.episode_factors(rng, self.episodes))
 
     def truth(self, draws: int = 2_000_000) -> float:
         """The population mean crash rate (a seed and an episode drawn at random); equal to
@@ -258,13 +332,7 @@ def difference_coverage(
     bounds: dict[str, list] = {"two-level bootstrap": [], "seed t (Welch)": [], "printed": []}
     for _ in range(studies):
         f = a.episode_factors(rng, a.episodes)
-        ya, yb = (
-            (
-                rng.random((d.seeds, d.episodes))
-                < np.minimum(d.seed_rates(rng, d.seeds)[:, None] * f, 1)
-            ).astype(float)
-            for d in (a, b)
-        )
+        ya, yb = (d.play(rng, d.seed_rates(rng, d.seeds), f) for d in (a, b))
         diffs.append(ya.mean() - yb.mean())
         bounds["printed"].append(crossed_difference_interval(ya, yb)[1:])
         bounds["seed t (Welch)"].append(_welch(ya.mean(axis=1), yb.mean(axis=1)))
@@ -280,6 +348,32 @@ def difference_coverage(
             "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
         }
     return out
+
+
+def paired_coverage(
+    a: Design, b: Design, studies: int = 1000, seed: int = 0
+) -> dict[str, dict[str, float]]:
+    """:func:`coverage` of the difference between the same models in two conditions: each
+    seed's rate in ``b`` is its rate in ``a`` times ``b.rate / a.rate`` (one model), each
+    condition has its own episodes, shared by every seed."""
+    rng = np.random.default_rng(seed)
+    truth = a.truth() - b.truth()
+    diffs, bounds = [], []
+    for _ in range(studies):
+        pa = a.seed_rates(rng, a.seeds)
+        ya = a.play(rng, pa, a.episode_factors(rng, a.episodes))
+        yb = b.play(rng, pa * b.rate / a.rate, b.episode_factors(rng, b.episodes))
+        d = ya.mean() - yb.mean()
+        diffs.append(d)
+        bounds.append(t_test(d, *paired_difference_variance(ya, yb))[:2])
+    oracle = 2 * 1.959964 * float(np.sqrt(np.mean((np.array(diffs) - truth) ** 2)))
+    bb = np.array(bounds)
+    return {
+        "printed": {
+            "coverage": float(((bb[:, 0] <= truth) & (truth <= bb[:, 1])).mean()),
+            "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
+        }
+    }
 
 
 def _welch(x: np.ndarray, y: np.ndarray, level: float = LEVEL) -> tuple[float, float]:
@@ -340,5 +434,28 @@ def difference_table(
         for s in seeds:
             a, b = Design(s, episodes=episodes, **ka), Design(s, episodes=episodes, **kb)
             result = difference_coverage(a, b, studies, seed)
+            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
+    return rows
+
+
+PAIRED: dict[str, tuple[dict, dict]] = {
+    "5% vs 3%": ({"rate": 0.05}, {"rate": 0.03}),
+    "30% vs 20%": ({"rate": 0.3}, {"rate": 0.2}),
+    "0.5% vs 1%": ({"rate": 0.005}, {"rate": 0.01}),
+    "5% vs 3%, lognormal seeds": (
+        {"rate": 0.05, "spread": "lognormal"},
+        {"rate": 0.03, "spread": "lognormal"},
+    ),
+}
+"""The simulated differences of the same models in two conditions (300 and 600 episodes)."""
+
+
+def paired_table(studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0) -> list:
+    """:func:`paired_coverage` in every :data:`PAIRED` setting at each seed count."""
+    rows = []
+    for name, (ka, kb) in PAIRED.items():
+        for s in seeds:
+            a, b = Design(s, episodes=300, **ka), Design(s, episodes=600, **kb)
+            result = paired_coverage(a, b, studies, seed)
             rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
     return rows

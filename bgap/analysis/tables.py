@@ -98,24 +98,26 @@ def paper_comparison(stats: pd.DataFrame, arm: str = "main") -> str:
 
 
 def claims_markdown(table: pd.DataFrame) -> str:
+    """The claims table, confirmatory family first, then each exploratory one."""
     lines = [
-        "| arm | n | claim (paper figure) | paper | ours: a - b [95% CI] | Holm-corrected "
-        "interval | p (Holm) | seeds a / b | episodes a / b | verdict | reading |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| family | arm | n | claim (paper figure) | paper | ours: a - b [95% CI] | "
+        "Holm-corrected interval | p (Holm) | seeds a / b | episodes a / b | verdict | reading |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for r in table.itertuples():
+    order = table.family.ne("confirmatory")
+    for r in table.assign(_o=order).sort_values("_o", kind="stable").itertuples():
         lines.append(
-            f"| {r.arm} | {r.n} | {r.claim} ({r.figure}) | {r.paper} | {r.difference:+.2f} "
-            f"[{r.lo:+.2f}, {r.hi:+.2f}] | [{r.lo_holm:+.2f}, {r.hi_holm:+.2f}] | "
-            f"{_p(r.p_holm)} | {r.n_seeds_a} / {r.n_seeds_b} | {r.n_episodes_a} / "
-            f"{r.n_episodes_b} | **{r.verdict}** | {r.reading} |"
+            f"| {r.family} | {r.arm} | {r.n} | {r.claim} ({r.figure}) | {r.paper} | "
+            f"{r.difference:+.2f} [{r.lo:+.2f}, {r.hi:+.2f}] | [{r.lo_holm:+.2f}, "
+            f"{r.hi_holm:+.2f}] | {_p(r.p_holm)} | {r.n_seeds_a} / {r.n_seeds_b} | "
+            f"{r.n_episodes_a} / {r.n_episodes_b} | **{r.verdict}** | {r.reading} |"
         )
     return "\n".join(lines) + "\n"
 
 
 def _p(p: float) -> str:
-    """A bootstrap p-value: 0 means no replicate on the other side (below 1e-4 at 20,000)."""
-    return "< 1e-4" if p == 0 else f"{p:.2g}"
+    """An analytic p-value, printed to two significant digits."""
+    return "< 1e-4" if p < 1e-4 else f"{p:.2g}"
 
 
 def own_markdown(own: pd.DataFrame) -> str:
