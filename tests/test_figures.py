@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from bgap.analysis.claims import ablation_table, claims, own_traffic
-from bgap.analysis.episodes import cell_stats, duplicates, parse_policies
+from bgap.analysis.episodes import cell_stats, duplicates, load_evaluations, parse_policies
 from bgap.common.vocab import PAPER_MIXES
 
 
@@ -429,3 +429,44 @@ def test_no_figure_or_page_names_an_issue_number(tmp_path, monkeypatch):
     assert pages
     for text in drawn + pages:
         assert not ISSUE_NUMBER.search(text), ISSUE_NUMBER.search(text).group(0)
+
+
+def _traffic_rows(arm: str, traffic: str, steps: int, seeds=range(4)) -> pd.DataFrame:
+    return pd.DataFrame({"arm": arm, "traffic": traffic, "density": "dense", "mix": 0.5,
+                         "seed": list(seeds), "steps": steps})  # fmt: skip
+
+
+def test_an_arm_that_played_other_traffic_is_left_out_and_named():
+    """One arm's replayed windows are shorter (another table), another arm's grid cell has
+    other episode seeds: both are found, left out of every comparison, and the page names
+    the stage and the input; arms that met the baselines' traffic stay."""
+    from bgap.analysis.inputs import drop_mismatched, mismatched_traffic
+    from bgap.analysis.page import _left_out
+
+    replay = "replay/sumo-idm-dense/log"
+    df = pd.concat([
+        _traffic_rows("", replay, 60), _traffic_rows("main", replay, 60),
+        _traffic_rows("short", replay, 29), _traffic_rows("", "paper", 40),
+        _traffic_rows("main", "paper", 40), _traffic_rows("reseeded", "paper", 40, range(1, 5)),
+    ], ignore_index=True)  # fmt: skip
+    found = mismatched_traffic(df)
+    assert [(m.arm, m.traffic) for m in found] == [("reseeded", "paper"), ("short", replay)]
+    assert "29 steps, the baselines' 60" in found[1].reason
+    kept = drop_mismatched(df, found)
+    assert set(zip(kept.arm, kept.traffic, strict=True)) == {
+        ("", replay), ("main", replay), ("", "paper"), ("main", "paper")
+    }  # fmt: skip
+    page = "\n".join(_left_out(found))
+    assert "`evaluate@short`" in page and replay in page and "`evaluate@reseeded`" in page
+    assert _left_out([]) == []
+
+
+def test_the_committed_selection_arm_replayed_other_tables():
+    """The committed study: only the selection arm's replayed cells (a rehearsal's tables,
+    windows of at most 29 steps) differ from the baselines' traffic."""
+    from bgap.analysis.inputs import mismatched_traffic
+
+    df, _ = load_evaluations([Path(__file__).parents[1] / "results/evaluation"])
+    found = mismatched_traffic(df)
+    assert {m.arm for m in found} == {"learner-dqn-k3"}
+    assert len(found) == 8 and all(m.traffic.startswith("replay/") for m in found)

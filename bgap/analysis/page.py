@@ -22,7 +22,7 @@ from bgap.analysis.tables import (
 from bgap.common.vocab import SPEED_FLOOR
 
 
-def readme(df, stats, table, own, sources, models, paths, yard) -> str:
+def readme(df, stats, table, own, sources, models, paths, yard, left_out=()) -> str:
     ablated = ablation_table(df)
     trained = df[df.train_seed >= 0]
     seeds = trained.groupby(["arm", "density", "family"]).train_seed.nunique()
@@ -44,6 +44,7 @@ def readme(df, stats, table, own, sources, models, paths, yard) -> str:
         f"Cells that repeat another cell's traffic (the same number of aggressive drivers, "
         f"so the same episodes): {dup_text}. They are shown in the per-cell tables and "
         "counted once in every average over mixes and in the claims.\n",
+        *_left_out(left_out),
         "## Does each trained policy beat idle in its own training traffic?\n",
         "Own traffic: behaviour-rich on the mixes it trained on, default in highway-env's "
         "stock traffic; largest radius; fewer collisions than the idle ego at a mean speed of "
@@ -147,3 +148,21 @@ def _validation(models) -> str:
     parts = [f"every {every} episodes on {n} episodes ({k} policies)"
              for (every, n), k in sorted(counts.items(), key=lambda kv: -kv[1])]  # fmt: skip
     return "; ".join(parts) or "(no stored settings)"
+
+
+def _left_out(mismatches) -> list[str]:
+    """The page's paragraph on cells left out of every comparison (none: nothing)."""
+    if not mismatches:
+        return []
+    by_stage: dict[str, list] = {}
+    for m in mismatches:
+        by_stage.setdefault(f"evaluate@{m.arm}", []).append(m)
+    lines = [f"- `{stage}`: {len(ms)} traffic cells ({', '.join(m.traffic for m in ms)}); "
+             f"{ms[0].reason}." for stage, ms in by_stage.items()]  # fmt: skip
+    return [
+        "## Cells left out\n",
+        "These cells played other traffic than the baselines, so they are compared with "
+        "nothing on this page (found from the episodes themselves: `bgap/analysis/inputs.py`). "
+        "Rerun the stage to bring them back.\n",
+        "\n".join(lines) + "\n",
+    ]

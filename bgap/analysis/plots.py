@@ -19,6 +19,7 @@ from bgap.analysis.episodes import (
     mixture_arms,
     n_of,
 )
+from bgap.analysis.inputs import drop_mismatched, mismatched_traffic
 from bgap.analysis.page import readme
 from bgap.analysis.paper import PAPER_CRASHES
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, keeps_up, versus_rule
@@ -303,6 +304,8 @@ def make_figures(
     ``sources`` (and ``stock``, read as stock traffic): :func:`load_evaluations`."""
     out = Path(out)
     df, models = load_evaluations(list(sources), list(stock))
+    left_out = mismatched_traffic(df)  # compared with nothing: other traffic than the baselines'
+    df = drop_mismatched(df, left_out)
     (out / "figures").mkdir(parents=True, exist_ok=True)
     stats, per_seed = cell_stats(df)
     paths = {name: out / f"{name}.csv" for name in ("cells", "claims", "own_traffic")}
@@ -338,6 +341,6 @@ def make_figures(
     if yardstick(yard, out / "figures" / "yardstick.png"):
         paths["yardstick"] = out / "figures" / "yardstick.png"
     paths["readme"] = out / "README.md"
-    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard)
+    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard, left_out)
     write_atomic(paths["readme"], page)
     return paths

@@ -1,0 +1,73 @@
+"""Checks that every compared arm met the same traffic, before any comparison is made.
+
+Comparisons across arms (a learned policy against the rule-based ego, one arm's claims
+beside another's) mean something only when both played the same episodes: the same
+replayed tables, the same episode seeds in every cell. ``figures`` joins cells by name, so
+an arm evaluated on other tables (a rehearsal's, whose windows are shorter) would be
+compared silently. :func:`mismatched_traffic` finds such cells from the episodes
+themselves, against the baselines' (the rule-based ego and idle, evaluated once for every
+arm); :func:`drop_mismatched` leaves them out of every table, and the results page names
+them.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import pandas as pd
+
+from bgap.analysis.episodes import is_replay
+
+
+class Mismatch(NamedTuple):
+    """An arm's cells whose traffic differs from the baselines'."""
+
+    arm: str
+    traffic: str
+    reason: str
+
+    def line(self) -> str:
+        return f"evaluate@{self.arm}, {self.traffic}: {self.reason}"
+
+
+def mismatched_traffic(df: pd.DataFrame) -> list[Mismatch]:
+    """Every (arm, traffic) whose episodes cannot be the baselines' traffic.
+
+    Replayed tables: each table's windows last a fixed number of steps, so the longest
+    episode any policy plays on a table is that window wherever one survived; an arm
+    whose longest differs from the baselines' replayed other tables. Simulated traffic:
+    every cell's episode seeds must be the baselines' seeds of that cell. Without baseline
+    episodes of a traffic there is nothing to compare with, and nothing is reported."""
+    out: list[Mismatch] = []
+    base = df[df.arm == ""]
+    arms = sorted(a for a in df.arm.unique() if a)
+    for traffic in sorted(df.traffic.unique()):
+        ref = base[base.traffic == traffic]
+        if ref.empty:
+            continue
+        for arm in arms:
+            mine = df[(df.arm == arm) & (df.traffic == traffic)]
+            if mine.empty:
+                continue
+            if is_replay(pd.Series([traffic])).iloc[0]:
+                a, b = int(mine.steps.max()), int(ref.steps.max())
+                if a != b:
+                    why = f"its episodes last at most {a} steps, the baselines' {b}"
+                    out.append(Mismatch(arm, traffic, why + ": it replayed other tables"))
+                continue
+            keys = ["density", "mix"]
+            ref_seeds = ref.groupby(keys).seed.apply(frozenset)
+            for key, seeds in mine.groupby(keys).seed.apply(frozenset).items():
+                if key in ref_seeds and seeds != ref_seeds[key]:
+                    why = f"its episode seeds at {key[0]}, mix {key[1]:g} are not the baselines'"
+                    out.append(Mismatch(arm, traffic, why))
+                    break
+    return out
+
+
+def drop_mismatched(df: pd.DataFrame, mismatches: list[Mismatch]) -> pd.DataFrame:
+    """``df`` without the cells of ``mismatches``."""
+    bad = pd.Series(False, index=df.index)
+    for m in mismatches:
+        bad |= (df.arm == m.arm) & (df.traffic == m.traffic)
+    return df[~bad]
