@@ -470,3 +470,31 @@ def test_the_committed_selection_arm_replayed_other_tables():
     found = mismatched_traffic(df)
     assert {m.arm for m in found} == {"learner-dqn-k3"}
     assert len(found) == 8 and all(m.traffic.startswith("replay/") for m in found)
+
+
+def test_the_readme_summary_agrees_with_the_committed_results():
+    """The README's summary restates the confirmatory headline and the count of policies
+    that beat idle: both must be what the figures stage wrote (claims.csv,
+    own_traffic.csv)."""
+    root = Path(__file__).parents[1]
+    text = " ".join((root / "README.md").read_text().split())
+    table = pd.read_csv(root / "results/claims.csv")
+    headline = table.claim.str.startswith("behaviour-rich collides less than default")
+    head = table[(table.family == "confirmatory") & headline]
+    number = r"([+-][\d.]+)"
+    patterns = {
+        40: rf"dense traffic \({number} points \[{number}, {number}\]\)",
+        5: rf"sparse traffic \({number} \[{number}, {number}\]\)",
+    }
+    for n, pattern in patterns.items():
+        row = head[head.n.astype(str) == str(n)].iloc[0]
+        found = re.search(pattern, text)
+        assert found, pattern
+        assert [float(x) for x in found.groups()] == [
+            round(row.difference, 1), round(row.lo, 1), round(row.hi, 1)
+        ]  # fmt: skip
+    sparse = head[head.n.astype(str) == "5"].iloc[0]
+    said = "is not significant after Holm's correction" in text
+    assert said == (sparse.verdict == "not significant")
+    own = pd.read_csv(root / "results/own_traffic.csv")
+    assert f"{int(own.beats_idle.sum())} of the {len(own)} trained policies beat idle" in text
