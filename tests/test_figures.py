@@ -498,3 +498,19 @@ def test_the_readme_summary_agrees_with_the_committed_results():
     assert said == (sparse.verdict == "not significant")
     own = pd.read_csv(root / "results/own_traffic.csv")
     assert f"{int(own.beats_idle.sum())} of the {len(own)} trained policies beat idle" in text
+
+
+def test_collisions_split_by_fault_and_by_time():
+    """A hand-made cell of 10 episodes: 4 collisions, 2 at fault (a rear-end and a lane
+    change), 1 rear-ended, 1 without partner; 1 in the first 3 steps. The table reads 40%,
+    20%, 10%, 10% and 40% (none in the first step)."""
+    from bgap.analysis.tables import fault_markdown
+
+    df = _study(lambda *a: 0.0, seeds=1, episodes=10, radii=(180.0,))
+    df = df[(df.family == "behavior_rich") & (df.mix == PAPER_MIXES[0])].copy()
+    endings = ["rear_end", "lane_change", "rear_ended", "other"] + ["timeout"] * 6
+    df["ending"], df["steps"] = endings, [9, 2, 5, 7] + [60] * 6
+    df["collision_pct"] = [100.0 * (e != "timeout") for e in endings]
+    df["traffic"] = "paper"
+    row = next(line for line in fault_markdown(df).splitlines() if line.startswith("| bgap"))
+    assert row.endswith("| 10 | 40.0 | 20.0 | 10.0 | 10.0 | 40.0 |")

@@ -9,8 +9,10 @@ from bgap.analysis.claims import MIN_SEEDS, ablation_table
 from bgap.analysis.episodes import ALPHA, duplicates, is_replay, n_of
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN
 from bgap.analysis.tables import (
+    EARLY_STEPS,
     claims_markdown,
     departures_markdown,
+    fault_markdown,
     own_markdown,
     paper_comparison,
     replay_markdown,
@@ -75,6 +77,14 @@ def readme(df, stats, table, own, sources, models, paths, yard, left_out=()) -> 
         "(each seed's pooled value: its crashes over its kilometres in each cell, averaged "
         "over the cells); `figures/yardstick.png` draws this table.\n",
         yardstick_markdown(stats, table, yard) if len(table) else "(no claims: one family only)\n",
+        "### Collisions by fault and by time\n",
+        "Beside all collisions (the paper's count, which every claim and verdict on this page "
+        "uses), the same cells split by fault and by time: *at fault* counts the ego's own "
+        "rear-ends and lane changes (nuPlan's convention), not being run into from behind; "
+        f"*in the first {EARLY_STEPS} steps* and *after the first step* count collisions by the "
+        "policy step they ended in. Episodes pooled over training seeds and cells; "
+        "descriptive, without intervals.\n",
+        fault_markdown(df),
         "## In observed traffic (replayed tables)\n",
         "The paper's premise is that behaviour-rich training prepares a policy for real "
         "traffic. Here every policy drives among recorded vehicles: tables of SUMO "
