@@ -416,9 +416,12 @@ WALL_CLOCK_TAGS = ("time/fps", "time/time_elapsed")
 """SB3's logged scalars that measure the machine, not the training."""
 
 
-def _code_files(root: Path) -> list[str]:
-    """Every code file some stage runs."""
-    return sorted({f for needed, _ in code_deps(root / "dvc.yaml").values() for f in needed})
+def _code_files(root: Path, stages: list[str]) -> list[str]:
+    """Every code file the ``stages`` run (``train`` or ``train@main-dense``): only those
+    are recorded in their locks, so other stages' code may change meanwhile."""
+    names = {s.split("@")[0] for s in stages}
+    deps = code_deps(root / "dvc.yaml")
+    return sorted({f for name in names if name in deps for f in deps[name][0]})
 
 
 def _record_lock(repo: Any, stage: str) -> None:
@@ -494,7 +497,9 @@ def relock(
             if _scalars(trees["base"] / d) != _scalars(trees["head"] / d)
         ]
     changed = [
-        f for f in _code_files(root) if not filecmp.cmp(root / f, trees["head"] / f, shallow=False)
+        f
+        for f in _code_files(root, stages)
+        if not filecmp.cmp(root / f, trees["head"] / f, shallow=False)
     ]
     if changed:  # the lock records the files as they are now, not as rehearsed
         raise ConfigError(f"code changed during the rehearsal: {', '.join(changed[:5])}; rerun")
