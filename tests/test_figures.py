@@ -484,7 +484,7 @@ def test_the_readme_summary_agrees_with_the_committed_results():
     number = r"([+-][\d.]+)"
     patterns = {
         40: rf"dense traffic \({number} points \[{number}, {number}\]\)",
-        5: rf"sparse traffic \({number} \[{number}, {number}\]\)",
+        5: rf"sparse traffic the difference \({number} \[{number}, {number}\]\)",
     }
     for n, pattern in patterns.items():
         row = head[head.n.astype(str) == str(n)].iloc[0]
