@@ -118,3 +118,21 @@ def test_a_bad_reproducible_value_is_one_line_and_status_2():
     )
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert "reproducible='maybe' must be true or false" in done.stderr
+
+
+def _count_to(n: int, report) -> int:
+    for i in range(1, n + 1):
+        report(i)
+    return n
+
+
+def test_jobs_in_workers_report_their_counts_to_one_bar_each():
+    """Two jobs in worker processes send their step counts through the bars' queue: each
+    bar ends at its own job's total, and disabled bars hand out no reporter."""
+    from bgap.runner.progress import JobBars
+
+    with JobBars(["a", "b"], [5, 7]) as bars:
+        out = run_jobs(_count_to, [(5, bars.reporter(0)), (7, bars.reporter(1))], workers=2)
+    assert out == [5, 7] and bars.counts == [5, 7]
+    with JobBars(["a"], [1], enabled=False) as quiet:
+        assert quiet.reporter(0) is None
