@@ -514,3 +514,18 @@ def test_collisions_split_by_fault_and_by_time():
     df["traffic"] = "paper"
     row = next(line for line in fault_markdown(df).splitlines() if line.startswith("| bgap"))
     assert row.endswith("| 10 | 40.0 | 20.0 | 10.0 | 10.0 | 40.0 |")
+
+
+def test_every_claims_interval_agrees_with_its_p_value():
+    """A claim's 95% interval excludes 0 exactly when its p-value is below 0.05, and its
+    Holm-corrected interval when the corrected p is (one test, not two; Holm's step-down
+    could in principle part them, not in this study)."""
+
+    def rate(family, mix, radius, seed):
+        return (0.05 if family == "default" else 0.12) + 0.02 * (radius < 100) + 0.01 * seed
+
+    table = claims(_study(rate, seeds=5))
+    assert len(table) > 5
+    for r in table.itertuples():
+        assert (r.lo > 0 or r.hi < 0) == (r.p < 0.05), r
+        assert (r.lo_holm > 0 or r.hi_holm < 0) == (r.p_holm < 0.05), r

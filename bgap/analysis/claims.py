@@ -100,14 +100,15 @@ def _t_test(estimate: float, var: float, dof: float, null: float):
 
 
 def _at_least_discordant(test, estimate: float, d: np.ndarray):
-    """Per-scene differences of 0/1 events: the interval reaches at least the Wilson bound
-    of the share of scenes that end differently (a policy that drives every scene alike
-    still has an interval, as a rate of 0 events does)."""
+    """Per-scene differences of 0/1 events where every scene ends alike (no spread to read):
+    the interval reaches the Wilson bound of 0 discordant scenes in all of them, as a rate
+    of 0 events does, so a policy that drives every scene alike still has an interval."""
+    if np.count_nonzero(d):
+        return test
 
     def widened(level: float) -> tuple[float, float, float]:
         lo, hi, p = test(level)
-        z = float(ndtri(0.5 + level / 2))
-        w = wilson_interval(int(np.count_nonzero(d)), d.size, z=z)[1]
+        w = wilson_interval(0, d.size, z=float(ndtri(0.5 + level / 2)))[1]
         return min(lo, estimate - w), max(hi, estimate + w), p
 
     return widened
