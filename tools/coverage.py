@@ -10,7 +10,12 @@ import sys
 
 import pandas as pd
 
-from bgap.analysis.intervals import coverage_table, difference_table, paired_table
+from bgap.analysis.intervals import (
+    coverage_table,
+    difference_table,
+    paired_table,
+    scene_table,
+)
 
 
 def markdown(rows: list[dict], title: str) -> str:
@@ -37,6 +42,7 @@ def main(studies: int = 1000) -> None:
     print(
         markdown(paired_table(studies), "The same models in two conditions (300 and 600 episodes)")
     )
+    print(markdown(scene_table(studies), "The same models on the same 700 scenes (two radii)"))
 
 
 if __name__ == "__main__":
