@@ -294,6 +294,36 @@ class Design:
         return float(np.minimum(p, 1.0).mean())
 
 
+def _summary(estimates: list[float], truth: float, bounds: list) -> dict[str, float]:
+    """Coverage of ``truth`` by ``bounds`` (lo, hi per study) and their median width as a
+    multiple of the oracle's: the true standard deviation of the estimates, times 1.96."""
+    oracle = 2 * 1.959964 * float(np.sqrt(np.mean((np.asarray(estimates) - truth) ** 2)))
+    bb = np.asarray(bounds, dtype=float)
+    return {
+        "coverage": float(((bb[:, 0] <= truth) & (truth <= bb[:, 1])).mean()),
+        "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
+    }
+
+
+def _rows(
+    settings: dict[str, tuple[dict, dict]],
+    fn: Callable,
+    episodes: tuple[int, int],
+    studies: int,
+    seeds: tuple[int, ...],
+    seed: int,
+) -> list[dict]:
+    """``fn(a, b, studies, seed)`` for every two-arm setting at each seed count, one row per
+    setting, seed count and method."""
+    rows = []
+    for name, (ka, kb) in settings.items():
+        for s in seeds:
+            a, b = Design(s, episodes=episodes[0], **ka), Design(s, episodes=episodes[1], **kb)
+            result = fn(a, b, studies, seed)
+            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
+    return rows
+
+
 def coverage(
     design: Design,
     studies: int = 1000,
@@ -308,15 +338,11 @@ def coverage(
     rng = np.random.default_rng(seed)
     truth = design.truth()
     tables = [design.draw(rng) for _ in range(studies)]
-    means = np.array([t.mean() for t in tables])
-    oracle_width = 2 * 1.959964 * float(np.sqrt(np.mean((means - truth) ** 2)))
+    means = [t.mean() for t in tables]
     out: dict[str, dict[str, float]] = {}
     for name, method in methods.items():
         kwargs = {"rng": np.random.default_rng(seed + 1)} if method is _two_level else {}
-        bounds = np.array([method(t, **kwargs)[1:] for t in tables])
-        covered = (bounds[:, 0] <= truth) & (truth <= bounds[:, 1])
-        width = float(np.median(bounds[:, 1] - bounds[:, 0]))
-        out[name] = {"coverage": float(covered.mean()), "width": width / oracle_width}
+        out[name] = _summary(means, truth, [method(t, **kwargs)[1:] for t in tables])
     return out
 
 
@@ -339,15 +365,7 @@ def difference_coverage(
         n_a, n_b = np.full(a.seeds, a.episodes), np.full(b.seeds, b.episodes)
         result = seed_bootstrap_diff(ya.sum(axis=1), n_a, yb.sum(axis=1), n_b, boot, draws=1000)
         bounds["two-level bootstrap"].append(result[1:3])
-    oracle = 2 * 1.959964 * float(np.sqrt(np.mean((np.array(diffs) - truth) ** 2)))
-    out = {}
-    for name, bb in bounds.items():
-        bb = np.array(bb)
-        out[name] = {
-            "coverage": float(((bb[:, 0] <= truth) & (truth <= bb[:, 1])).mean()),
-            "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
-        }
-    return out
+    return {name: _summary(diffs, truth, bb) for name, bb in bounds.items()}
 
 
 def paired_coverage(
@@ -366,14 +384,7 @@ def paired_coverage(
         d = ya.mean() - yb.mean()
         diffs.append(d)
         bounds.append(t_test(d, *paired_difference_variance(ya, yb))[:2])
-    oracle = 2 * 1.959964 * float(np.sqrt(np.mean((np.array(diffs) - truth) ** 2)))
-    bb = np.array(bounds)
-    return {
-        "printed": {
-            "coverage": float(((bb[:, 0] <= truth) & (truth <= bb[:, 1])).mean()),
-            "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
-        }
-    }
+    return {"printed": _summary(diffs, truth, bounds)}
 
 
 def _welch(x: np.ndarray, y: np.ndarray, level: float = LEVEL) -> tuple[float, float]:
@@ -429,13 +440,7 @@ def difference_table(
     studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), episodes: int = 700, seed: int = 0
 ) -> list[dict]:
     """:func:`difference_coverage` in every :data:`DIFFERENCES` at each seed count."""
-    rows = []
-    for name, (ka, kb) in DIFFERENCES.items():
-        for s in seeds:
-            a, b = Design(s, episodes=episodes, **ka), Design(s, episodes=episodes, **kb)
-            result = difference_coverage(a, b, studies, seed)
-            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
-    return rows
+    return _rows(DIFFERENCES, difference_coverage, (episodes, episodes), studies, seeds, seed)
 
 
 PAIRED: dict[str, tuple[dict, dict]] = {
@@ -452,13 +457,7 @@ PAIRED: dict[str, tuple[dict, dict]] = {
 
 def paired_table(studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0) -> list:
     """:func:`paired_coverage` in every :data:`PAIRED` setting at each seed count."""
-    rows = []
-    for name, (ka, kb) in PAIRED.items():
-        for s in seeds:
-            a, b = Design(s, episodes=300, **ka), Design(s, episodes=600, **kb)
-            result = paired_coverage(a, b, studies, seed)
-            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
-    return rows
+    return _rows(PAIRED, paired_coverage, (300, 600), studies, seeds, seed)
 
 
 def scene_coverage(
@@ -478,22 +477,9 @@ def scene_coverage(
         d = (u < pa).astype(float) - (u < np.minimum(pa * b.rate / a.rate, 1)).astype(float)
         diffs.append(d.mean())
         bounds.append(crossed_interval(d)[1:])
-    oracle = 2 * 1.959964 * float(np.sqrt(np.mean((np.array(diffs) - truth) ** 2)))
-    bb = np.array(bounds)
-    return {
-        "printed": {
-            "coverage": float(((bb[:, 0] <= truth) & (truth <= bb[:, 1])).mean()),
-            "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
-        }
-    }
+    return {"printed": _summary(diffs, truth, bounds)}
 
 
 def scene_table(studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0) -> list:
     """:func:`scene_coverage` in every :data:`PAIRED` setting (700 shared scenes)."""
-    rows = []
-    for name, (ka, kb) in PAIRED.items():
-        for s in seeds:
-            a, b = Design(s, episodes=700, **ka), Design(s, episodes=700, **kb)
-            result = scene_coverage(a, b, studies, seed)
-            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
-    return rows
+    return _rows(PAIRED, scene_coverage, (700, 700), studies, seeds, seed)
