@@ -1,7 +1,7 @@
 """Print the coverage tables of the study's intervals as Markdown (docs/intervals.md):
 1,000 simulated studies per setting, derandomised, about 3 minutes on 2 cores.
 
-    python tools/coverage.py > /tmp/coverage.md
+    python tools/interval_coverage.py > /tmp/coverage.md
 """
 
 from __future__ import annotations
