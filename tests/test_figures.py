@@ -431,9 +431,11 @@ def test_no_figure_or_page_names_an_issue_number(tmp_path, monkeypatch):
         assert not ISSUE_NUMBER.search(text), ISSUE_NUMBER.search(text).group(0)
 
 
-def _traffic_rows(arm: str, traffic: str, steps: int, seeds=range(4)) -> pd.DataFrame:
+def _traffic_rows(arm: str, traffic: str, steps: int, seeds=range(4), crash=()) -> pd.DataFrame:
+    """Episodes of one arm: the seeds in ``crash`` end in a collision after 3 steps."""
     return pd.DataFrame({"arm": arm, "traffic": traffic, "density": "dense", "mix": 0.5,
-                         "seed": list(seeds), "steps": steps})  # fmt: skip
+                         "seed": list(seeds), "steps": [3 if s in crash else steps for s in seeds],
+                         "collision_pct": [100.0 * (s in crash) for s in seeds]})  # fmt: skip
 
 
 def test_an_arm_that_played_other_traffic_is_left_out_and_named():
@@ -445,13 +447,14 @@ def test_an_arm_that_played_other_traffic_is_left_out_and_named():
 
     replay = "replay/sumo-idm-dense/log"
     df = pd.concat([
-        _traffic_rows("", replay, 60), _traffic_rows("main", replay, 60),
+        _traffic_rows("", replay, 60, crash={0}),
+        _traffic_rows("main", replay, 60, crash={1, 2, 3}),
         _traffic_rows("short", replay, 29), _traffic_rows("", "paper", 40),
         _traffic_rows("main", "paper", 40), _traffic_rows("reseeded", "paper", 40, range(1, 5)),
     ], ignore_index=True)  # fmt: skip
     found = mismatched_traffic(df)
     assert [(m.arm, m.traffic) for m in found] == [("reseeded", "paper"), ("short", replay)]
-    assert "29 steps, the baselines' 60" in found[1].reason
+    assert "3 of its 3 episodes" in found[1].reason and "29 steps, the window 60" in found[1].reason
     kept = drop_mismatched(df, found)
     assert set(zip(kept.arm, kept.traffic, strict=True)) == {
         ("", replay), ("main", replay), ("", "paper"), ("main", "paper")

@@ -33,9 +33,10 @@ class Mismatch(NamedTuple):
 def mismatched_traffic(df: pd.DataFrame) -> list[Mismatch]:
     """Every (arm, traffic) whose episodes cannot be the baselines' traffic.
 
-    Replayed tables: each table's windows last a fixed number of steps, so the longest
-    episode any policy plays on a table is that window wherever one survived; an arm
-    whose longest differs from the baselines' replayed other tables. Simulated traffic:
+    Replayed tables: each episode seed replays one window of a table, so an episode that
+    ends without a collision lasts that window's steps, whichever policy drives; an arm
+    whose episodes run past the baselines' window of the same seed, or end without a
+    collision at another length, replayed other tables. Simulated traffic:
     every cell's episode seeds must be the baselines' seeds of that cell. Without baseline
     episodes of a traffic there is nothing to compare with, and nothing is reported."""
     out: list[Mismatch] = []
@@ -50,9 +51,8 @@ def mismatched_traffic(df: pd.DataFrame) -> list[Mismatch]:
             if mine.empty:
                 continue
             if is_replay(pd.Series([traffic])).iloc[0]:
-                a, b = int(mine.steps.max()), int(ref.steps.max())
-                if a != b:
-                    why = f"its episodes last at most {a} steps, the baselines' {b}"
+                why = _other_windows(mine, ref)
+                if why:
                     out.append(Mismatch(arm, traffic, why + ": it replayed other tables"))
                 continue
             keys = ["density", "mix"]
@@ -71,3 +71,21 @@ def drop_mismatched(df: pd.DataFrame, mismatches: list[Mismatch]) -> pd.DataFram
     for m in mismatches:
         bad |= (df.arm == m.arm) & (df.traffic == m.traffic)
     return df[~bad]
+
+
+def _other_windows(mine: pd.DataFrame, ref: pd.DataFrame) -> str:
+    """Why ``mine`` (one arm's episodes of one replayed traffic) did not replay the windows
+    of ``ref`` (the baselines'), or "" where every episode fits them."""
+    keys = ["density", "seed"]
+    ended = ref[ref.collision_pct == 0].groupby(keys).steps.max().rename("window")
+    joined = mine.join(ended, on=keys, how="inner")
+    if joined.empty:
+        return ""
+    survived = joined.collision_pct == 0
+    bad = (joined.steps > joined.window) | (survived & (joined.steps != joined.window))
+    if not bad.any():
+        return ""
+    first = joined[bad].iloc[0]
+    return (f"{int(bad.sum())} of its {len(joined)} episodes do not fit the baselines' "
+            f"windows (seed {int(first.seed)}: {int(first.steps)} steps, the window "
+            f"{int(first.window)})")  # fmt: skip
