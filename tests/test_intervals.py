@@ -1,23 +1,26 @@
 """The crossed-design intervals (bgap.analysis.intervals): the ANOVA against a hand-computed
 table, the variance estimators against the closed-form variance of simulated crossed designs,
-and the printed intervals' coverage against simulated studies with a known true rate."""
+and the printed intervals' coverage against simulated studies with a known true rate
+(bgap.analysis.coverage)."""
 
 import numpy as np
 import pytest
 
-from bgap.analysis.intervals import (
+from bgap.analysis.coverage import (
     Design,
     coverage,
     coverage_table,
+    difference_coverage,
+    difference_table,
+    paired_table,
+    scene_table,
+)
+from bgap.analysis.intervals import (
     crossed_difference_interval,
     crossed_interval,
     crossed_variance,
-    difference_coverage,
-    difference_table,
     log_rate_interval,
-    paired_table,
     rate_interval,
-    scene_table,
 )
 
 

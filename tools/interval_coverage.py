@@ -10,7 +10,7 @@ import sys
 
 import pandas as pd
 
-from bgap.analysis.intervals import (
+from bgap.analysis.coverage import (
     coverage_table,
     difference_table,
     paired_table,

@@ -44,8 +44,14 @@ def _table(df: pd.DataFrame, metric: str, scale: float = 1.0) -> pd.DataFrame:
     return wide.dropna(axis=1) / scale
 
 
-def _test(claim: Claim, df: pd.DataFrame, level: float = 1 - ALPHA) -> dict | None:
-    """Observed difference, its interval at ``level`` and p-value for one claim on ``df``
+def _unrelated(ta: pd.DataFrame, tb: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Two unrelated trainings' seeds x episodes tables on the episodes both played."""
+    common = ta.columns.intersection(tb.columns)
+    return ta[common].to_numpy(), tb[common].to_numpy()
+
+
+def _test(claim: Claim, df: pd.DataFrame) -> dict | None:
+    """Observed difference, its 95% interval and p-value for one claim on ``df``
     (one arm, one density, the grid's traffic, duplicate cells removed), with the
     training seed as the unit and the episodes every seed shares accounted for
     (:mod:`bgap.analysis.intervals`; analytic, so p-values carry no Monte Carlo error)."""
@@ -75,17 +81,16 @@ def _test(claim: Claim, df: pd.DataFrame, level: float = 1 - ALPHA) -> dict | No
         ta, tb = _table(a, claim.metric, scale), _table(b, claim.metric, scale)
         if claim.design == "model":  # the same models in two conditions: aligned by seed
             common = ta.index.intersection(tb.index)
-            ta, tb = ta.loc[common], tb.loc[common]
-            var, dof = paired_difference_variance(ta.to_numpy(), tb.to_numpy())
+            ya, yb = ta.loc[common].to_numpy(), tb.loc[common].to_numpy()
+            var, dof = paired_difference_variance(ya, yb)
         else:  # unrelated trainings on the same episodes
-            common = ta.columns.intersection(tb.columns)
-            ta, tb = ta[common], tb[common]
-            var, dof = crossed_difference_variance(ta.to_numpy(), tb.to_numpy())
-        estimate = float(ta.to_numpy().mean() - tb.to_numpy().mean())
-        sizes = (len(ta), len(tb), len(a), len(b))
-        values = (scale * float(ta.to_numpy().mean()), scale * float(tb.to_numpy().mean()))
+            ya, yb = _unrelated(ta, tb)
+            var, dof = crossed_difference_variance(ya, yb)
+        estimate = float(ya.mean() - yb.mean())
+        sizes = (len(ya), len(yb), len(a), len(b))
+        values = (scale * float(ya.mean()), scale * float(yb.mean()))
         test = _t_test(estimate, var, dof, 0.0)
-    lo, hi, p = test(level)
+    lo, hi, p = test(1 - ALPHA)
     return {
         "difference": scale * estimate, "lo": scale * lo, "hi": scale * hi, "p": p,
         "test": lambda lv: tuple(scale * x for x in test(lv)[:2]),
@@ -211,9 +216,9 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
                 b = d[(d.arm == "main") & d.mix.isin(mixes)]
                 if a.empty or b.empty:
                     continue
-                ta, tb = _table(a, "collision_pct", 100.0), _table(b, "collision_pct", 100.0)
-                common = ta.columns.intersection(tb.columns)
-                ya, yb = ta[common].to_numpy(), tb[common].to_numpy()
+                ya, yb = _unrelated(
+                    _table(a, "collision_pct", 100.0), _table(b, "collision_pct", 100.0)
+                )
                 observed = float(ya.mean() - yb.mean())
                 lo, hi, p = t_test(observed, *crossed_difference_variance(ya, yb))
                 rows.append({"arm": arm, "n": n_of(density), "test traffic": where,

@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import pandas as pd
 
-from bgap.analysis.episodes import is_replay
+from bgap.analysis.episodes import REPLAY
 
 
 class Mismatch(NamedTuple):
@@ -40,23 +40,20 @@ def mismatched_traffic(df: pd.DataFrame) -> list[Mismatch]:
     every cell's episode seeds must be the baselines' seeds of that cell. Without baseline
     episodes of a traffic there is nothing to compare with, and nothing is reported."""
     out: list[Mismatch] = []
-    base = df[df.arm == ""]
-    arms = sorted(a for a in df.arm.unique() if a)
-    for traffic in sorted(df.traffic.unique()):
-        ref = base[base.traffic == traffic]
-        if ref.empty:
+    refs = dict(tuple(df[df.arm == ""].groupby("traffic")))
+    for traffic, arms in df[df.arm != ""].groupby("traffic", sort=True):
+        ref = refs.get(traffic)
+        if ref is None:
             continue
-        for arm in arms:
-            mine = df[(df.arm == arm) & (df.traffic == traffic)]
-            if mine.empty:
-                continue
-            if is_replay(pd.Series([traffic])).iloc[0]:
+        if traffic.startswith(REPLAY):
+            for arm, mine in arms.groupby("arm", sort=True):
                 why = _other_windows(mine, ref)
                 if why:
                     out.append(Mismatch(arm, traffic, why + ": it replayed other tables"))
-                continue
-            keys = ["density", "mix"]
-            ref_seeds = ref.groupby(keys).seed.apply(frozenset)
+            continue
+        keys = ["density", "mix"]
+        ref_seeds = ref.groupby(keys).seed.apply(frozenset)
+        for arm, mine in arms.groupby("arm", sort=True):
             for key, seeds in mine.groupby(keys).seed.apply(frozenset).items():
                 if key in ref_seeds and seeds != ref_seeds[key]:
                     why = f"its episode seeds at {key[0]}, mix {key[1]:g} are not the baselines'"

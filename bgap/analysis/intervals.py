@@ -14,21 +14,16 @@ the same episodes. Both are closed forms: scipy and statsmodels offer one-way in
 and mixed models fitted by likelihood, not this moment estimator of a crossed design's
 mean, and a closed form lets the coverage simulation run thousands of studies in seconds.
 
-:func:`coverage` simulates studies of the study's design with a known true mean and counts
-how often each method's nominal 95% interval covers it; :data:`METHODS` names the methods
-it compares (the two-level bootstrap the study printed, Student t over seed means, and the
-crossed interval) and the oracle that knows the true variance of the mean.
+How often each covers the truth in simulated studies of this design:
+:mod:`bgap.analysis.coverage`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.special import ndtri, stdtr, stdtrit
 
-from bgap.analysis.stats import seed_bootstrap_diff, seed_rate_interval, wilson_interval
+from bgap.analysis.stats import wilson_interval
 
 LEVEL = 0.95
 
@@ -51,7 +46,7 @@ def _components(y: np.ndarray) -> tuple[float, float, float, float, float, float
     return ms_s, s - 1, ms_e, e - 1, ms_r, df_r
 
 
-def _satterthwaite(terms: list[tuple[float, float]]) -> float:
+def satterthwaite(terms: list[tuple[float, float]]) -> float:
     """Degrees of freedom of a sum of mean squares ``sum(c * ms)`` given as ``(c * ms,
     df)`` pairs (negative coefficients included)."""
     num = sum(v for v, _ in terms) ** 2
@@ -69,7 +64,7 @@ def crossed_variance(y: np.ndarray) -> tuple[float, float]:
     s, e = y.shape
     ms_s, df_s, ms_e, df_e, ms_r, df_r = _components(y)
     var = (ms_s + ms_e - ms_r) / (s * e)
-    df = _satterthwaite([(ms_s, df_s), (ms_e, df_e), (-ms_r, df_r)])
+    df = satterthwaite([(ms_s, df_s), (ms_e, df_e), (-ms_r, df_r)])
     floor = max(ms_s, ms_e) / (s * e)
     if var < floor:  # a truncated estimate: read it at the df of its own term
         var, df = floor, float(df_s if ms_s >= ms_e else df_e)
@@ -109,7 +104,7 @@ def crossed_difference_variance(a: np.ndarray, b: np.ndarray) -> tuple[float, fl
     terms = [(ms_sa / (sa * e), df_sa), (ms_sb / (sb * e), df_sb), (ms_d / e, e - 1),
              (-ms_ra / (sa * e), df_ra), (-ms_rb / (sb * e), df_rb)]  # fmt: skip
     var = sum(v for v, _ in terms)
-    df = _satterthwaite(terms)
+    df = satterthwaite(terms)
     # each of Welch's variance of the seed means and the episode term alone is a lower
     # bound in expectation: an estimate below both is floored at the larger
     welch = (ms_sa / sa + ms_sb / sb) / e
@@ -135,7 +130,7 @@ def paired_difference_variance(a: np.ndarray, b: np.ndarray) -> tuple[float, flo
     for y in (a, b):
         _, _, ms_e, df_e, ms_r, df_r = _components(y)
         terms += [(ms_e / (s * y.shape[1]), df_e), (-ms_r / (s * y.shape[1]), df_r)]
-    var, df = sum(v for v, _ in terms), _satterthwaite(terms)
+    var, df = sum(v for v, _ in terms), satterthwaite(terms)
     if var < terms[0][0]:  # the paired seeds' term alone is a lower bound in expectation
         var, df = terms[0][0], float(s - 1)
     return float(var), max(float(df), 1.0)
@@ -214,272 +209,10 @@ def rate_interval(y: np.ndarray, level: float = LEVEL) -> tuple[float, float, fl
     few high seeds are missed, so only the upper end needs the log scale), and both ends
     reach at least as far as the Wilson interval of all episodes pooled (a rate cannot be
     known better than its episodes allow: all-zero tables have no spread to read). No single
-    method covers in every setting of :func:`coverage_table`; this one does at 3, 5 and 10
-    seeds."""
+    method covers in every setting of :func:`bgap.analysis.coverage.coverage_table`; this
+    one does at 3, 5 and 10 seeds."""
     mean, lo, hi = crossed_interval(y, level)
     _, _, hi_log = log_rate_interval(y, level)
     y = np.asarray(y, dtype=float)
     w_lo, w_hi = wilson_interval(int(round(y.sum())), y.size, z=float(ndtri(0.5 + level / 2)))
     return mean, max(0.0, min(lo, w_lo)), max(hi, hi_log, w_hi)
-
-
-# --- methods the coverage simulation compares -------------------------------------------
-
-
-def _seed_t(y: np.ndarray, level: float = LEVEL) -> tuple[float, float, float]:
-    """Student t over the seeds' means: seeds as the units, shared episodes ignored."""
-    m = y.mean(axis=1)
-    half = _t(len(m) - 1, level) * m.std(ddof=1) / np.sqrt(len(m))
-    return float(m.mean()), float(m.mean() - half), float(m.mean() + half)
-
-
-def _two_level(y: np.ndarray, level: float = LEVEL, rng=None) -> tuple[float, float, float]:
-    """The two-level bootstrap the study printed (seeds, then each seed's own episodes)."""
-    lo, hi = seed_rate_interval(list(y), rng=rng, draws=2000)
-    return float(y.mean()), lo, hi
-
-
-METHODS: dict[str, Callable] = {
-    "two-level bootstrap": _two_level,
-    "seed t": _seed_t,
-    "crossed t": crossed_interval,
-    "log-scale (Cox)": log_rate_interval,
-    "printed": rate_interval,
-}
-"""Interval methods of one arm's mean that :func:`coverage` compares."""
-
-
-@dataclass(frozen=True)
-class Design:
-    """A simulated study: ``seeds`` training seeds each playing the same ``episodes``
-    episodes, seed crash rates around ``rate`` (``spread``: "normal" with coefficient of
-    variation ``cv``, or "lognormal" with log-sd ``sigma_log``), and episodes whose
-    difficulty multiplies every seed's rate by a shared Gamma factor of mean 1 and
-    coefficient of variation ``episode_cv``."""
-
-    seeds: int
-    rate: float
-    spread: str = "normal"
-    cv: float = 0.3
-    sigma_log: float = 1.2
-    episodes: int = 100
-    episode_cv: float = 0.7
-
-    def seed_rates(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        if self.spread == "lognormal":
-            z = rng.standard_normal(n)
-            return self.rate * np.exp(self.sigma_log * z - self.sigma_log**2 / 2)
-        return np.clip(self.rate * (1 + self.cv * rng.standard_normal(n)), 0.0, None)
-
-    def episode_factors(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        k = 1 / self.episode_cv**2
-        return rng.gamma(k, 1 / k, size=n)
-
-    @staticmethod
-    def play(rng: np.random.Generator, rates: np.ndarray, factors: np.ndarray) -> np.ndarray:
-        """0/1 crashes of seeds of these ``rates`` in episodes of these difficulty
-        ``factors``."""
-        p = np.minimum(rates[:, None] * factors[None, :], 1.0)
-        return (rng.random(p.shape) < p).astype(float)
-
-    def draw(self, rng: np.random.Generator) -> np.ndarray:
-        rates = self.seed_rates(rng, self.seeds)
-        return self.play(rng, rates, self.episode_factors(rng, self.episodes))
-
-    def truth(self, draws: int = 2_000_000) -> float:
-        """The population mean crash rate (a seed and an episode drawn at random); equal to
-        ``rate`` unless rates are clipped at 1, so it is computed, derandomised."""
-        rng = np.random.default_rng(12345)
-        p = self.seed_rates(rng, draws) * self.episode_factors(rng, draws)
-        return float(np.minimum(p, 1.0).mean())
-
-
-def _summary(estimates: list[float], truth: float, bounds: list) -> dict[str, float]:
-    """Coverage of ``truth`` by ``bounds`` (lo, hi per study) and their median width as a
-    multiple of the oracle's: the true standard deviation of the estimates, times 1.96."""
-    oracle = 2 * 1.959964 * float(np.sqrt(np.mean((np.asarray(estimates) - truth) ** 2)))
-    bb = np.asarray(bounds, dtype=float)
-    return {
-        "coverage": float(((bb[:, 0] <= truth) & (truth <= bb[:, 1])).mean()),
-        "width": float(np.median(bb[:, 1] - bb[:, 0])) / oracle,
-    }
-
-
-def _rows(
-    settings: dict[str, tuple[dict, dict]],
-    fn: Callable,
-    episodes: tuple[int, int],
-    studies: int,
-    seeds: tuple[int, ...],
-    seed: int,
-) -> list[dict]:
-    """``fn(a, b, studies, seed)`` for every two-arm setting at each seed count, one row per
-    setting, seed count and method."""
-    rows = []
-    for name, (ka, kb) in settings.items():
-        for s in seeds:
-            a, b = Design(s, episodes=episodes[0], **ka), Design(s, episodes=episodes[1], **kb)
-            result = fn(a, b, studies, seed)
-            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
-    return rows
-
-
-def coverage(
-    design: Design,
-    studies: int = 1000,
-    seed: int = 0,
-    methods: dict[str, Callable] | None = None,
-) -> dict[str, dict[str, float]]:
-    """Share of ``studies`` simulated studies of ``design`` whose nominal 95% interval
-    covers the true mean, per method, with each method's median width as a multiple of
-    the oracle's (the true standard deviation of the mean over these studies, times the
-    normal quantile). Derandomised: the same ``seed`` gives the same table."""
-    methods = METHODS if methods is None else methods
-    rng = np.random.default_rng(seed)
-    truth = design.truth()
-    tables = [design.draw(rng) for _ in range(studies)]
-    means = [t.mean() for t in tables]
-    out: dict[str, dict[str, float]] = {}
-    for name, method in methods.items():
-        kwargs = {"rng": np.random.default_rng(seed + 1)} if method is _two_level else {}
-        out[name] = _summary(means, truth, [method(t, **kwargs)[1:] for t in tables])
-    return out
-
-
-def difference_coverage(
-    a: Design, b: Design, studies: int = 1000, seed: int = 0
-) -> dict[str, dict[str, float]]:
-    """:func:`coverage` of the difference between two arms (unrelated trainings) that play
-    the same episodes: each study draws one set of episode factors for both arms."""
-    rng = np.random.default_rng(seed)
-    boot = np.random.default_rng(seed + 1)
-    truth = a.truth() - b.truth()
-    diffs = []
-    bounds: dict[str, list] = {"two-level bootstrap": [], "seed t (Welch)": [], "printed": []}
-    for _ in range(studies):
-        f = a.episode_factors(rng, a.episodes)
-        ya, yb = (d.play(rng, d.seed_rates(rng, d.seeds), f) for d in (a, b))
-        diffs.append(ya.mean() - yb.mean())
-        bounds["printed"].append(crossed_difference_interval(ya, yb)[1:])
-        bounds["seed t (Welch)"].append(_welch(ya.mean(axis=1), yb.mean(axis=1)))
-        n_a, n_b = np.full(a.seeds, a.episodes), np.full(b.seeds, b.episodes)
-        result = seed_bootstrap_diff(ya.sum(axis=1), n_a, yb.sum(axis=1), n_b, boot, draws=1000)
-        bounds["two-level bootstrap"].append(result[1:3])
-    return {name: _summary(diffs, truth, bb) for name, bb in bounds.items()}
-
-
-def paired_coverage(
-    a: Design, b: Design, studies: int = 1000, seed: int = 0
-) -> dict[str, dict[str, float]]:
-    """:func:`coverage` of the difference between the same models in two conditions: each
-    seed's rate in ``b`` is its rate in ``a`` times ``b.rate / a.rate`` (one model), each
-    condition has its own episodes, shared by every seed."""
-    rng = np.random.default_rng(seed)
-    truth = a.truth() - b.truth()
-    diffs, bounds = [], []
-    for _ in range(studies):
-        pa = a.seed_rates(rng, a.seeds)
-        ya = a.play(rng, pa, a.episode_factors(rng, a.episodes))
-        yb = b.play(rng, pa * b.rate / a.rate, b.episode_factors(rng, b.episodes))
-        d = ya.mean() - yb.mean()
-        diffs.append(d)
-        bounds.append(t_test(d, *paired_difference_variance(ya, yb))[:2])
-    return {"printed": _summary(diffs, truth, bounds)}
-
-
-def _welch(x: np.ndarray, y: np.ndarray, level: float = LEVEL) -> tuple[float, float]:
-    vx, vy = x.var(ddof=1) / len(x), y.var(ddof=1) / len(y)
-    df = (vx + vy) ** 2 / (vx**2 / (len(x) - 1) + vy**2 / (len(y) - 1)) if vx + vy > 0 else 1.0
-    half = _t(max(df, 1.0), level) * np.sqrt(vx + vy)
-    d = x.mean() - y.mean()
-    return float(d - half), float(d + half)
-
-
-SETTINGS: dict[str, dict] = {
-    "rate 0.5%": {"rate": 0.005},
-    "rate 5%": {"rate": 0.05},
-    "rate 30%": {"rate": 0.3},
-    "rare, lognormal seeds": {"rate": 0.005, "spread": "lognormal"},
-    "alike seeds, hard episodes": {"rate": 0.05, "cv": 0.05, "episode_cv": 1.5},
-}
-"""The simulated settings of the coverage table: seed rates spread normally (coefficient of
-variation 0.3) at three rates, rare rates spread lognormally (log-sd 1.2, a few seeds far
-above the rest), and seeds that all drive alike in episodes of very unequal difficulty
-(where the shared episodes, not the seeds, make the uncertainty)."""
-
-
-def coverage_table(
-    studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), episodes: int = 100, seed: int = 0
-) -> list[dict]:
-    """:func:`coverage` of every method in every :data:`SETTINGS` at each seed count, one
-    row per setting, seed count and method."""
-    rows = []
-    for name, kwargs in SETTINGS.items():
-        for s in seeds:
-            result = coverage(Design(s, episodes=episodes, **kwargs), studies, seed)
-            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
-    return rows
-
-
-DIFFERENCES: dict[str, tuple[dict, dict]] = {
-    "5% vs 3%": ({"rate": 0.05}, {"rate": 0.03}),
-    "30% vs 20%": ({"rate": 0.3}, {"rate": 0.2}),
-    "rare, lognormal seeds, equal": (
-        {"rate": 0.005, "spread": "lognormal"},
-        {"rate": 0.005, "spread": "lognormal"},
-    ),
-    "alike seeds, hard episodes": (
-        {"rate": 0.05, "cv": 0.05, "episode_cv": 1.5},
-        {"rate": 0.04, "cv": 0.05, "episode_cv": 1.5},
-    ),
-}
-"""The simulated differences between two arms of the coverage table."""
-
-
-def difference_table(
-    studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), episodes: int = 700, seed: int = 0
-) -> list[dict]:
-    """:func:`difference_coverage` in every :data:`DIFFERENCES` at each seed count."""
-    return _rows(DIFFERENCES, difference_coverage, (episodes, episodes), studies, seeds, seed)
-
-
-PAIRED: dict[str, tuple[dict, dict]] = {
-    "5% vs 3%": ({"rate": 0.05}, {"rate": 0.03}),
-    "30% vs 20%": ({"rate": 0.3}, {"rate": 0.2}),
-    "0.5% vs 1%": ({"rate": 0.005}, {"rate": 0.01}),
-    "5% vs 3%, lognormal seeds": (
-        {"rate": 0.05, "spread": "lognormal"},
-        {"rate": 0.03, "spread": "lognormal"},
-    ),
-}
-"""The simulated differences of the same models in two conditions (300 and 600 episodes)."""
-
-
-def paired_table(studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0) -> list:
-    """:func:`paired_coverage` in every :data:`PAIRED` setting at each seed count."""
-    return _rows(PAIRED, paired_coverage, (300, 600), studies, seeds, seed)
-
-
-def scene_coverage(
-    a: Design, b: Design, studies: int = 1000, seed: int = 0
-) -> dict[str, dict[str, float]]:
-    """:func:`coverage` of the difference between the same models in two settings that play
-    the same scenes (two perception radii): each seed's rate in ``b`` is its rate in ``a``
-    times ``b.rate / a.rate``, and one uniform draw per seed and scene decides both
-    outcomes (a scene that is hard in one setting is hard in the other). The interval is
-    the crossed one of the per-scene differences."""
-    rng = np.random.default_rng(seed)
-    truth = a.truth() - b.truth()
-    diffs, bounds = [], []
-    for _ in range(studies):
-        pa = np.minimum(a.seed_rates(rng, a.seeds)[:, None] * a.episode_factors(rng, a.episodes), 1)
-        u = rng.random(pa.shape)
-        d = (u < pa).astype(float) - (u < np.minimum(pa * b.rate / a.rate, 1)).astype(float)
-        diffs.append(d.mean())
-        bounds.append(crossed_interval(d)[1:])
-    return {"printed": _summary(diffs, truth, bounds)}
-
-
-def scene_table(studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0) -> list:
-    """:func:`scene_coverage` in every :data:`PAIRED` setting (700 shared scenes)."""
-    return _rows(PAIRED, scene_coverage, (700, 700), studies, seeds, seed)
