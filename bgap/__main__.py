@@ -20,6 +20,7 @@ COMMANDS = {
     "run": ("bgap.run", "the main job: train both policies, evaluate, compare"),
     "sweep": ("bgap.sweep", "Optuna search over reward or learner settings"),
     "recipe": ("bgap.recipe", "search the training recipe and check it on more seeds"),
+    "tune_rule": ("bgap.tune_rule", "tune the rule-based ego's IDM and MOBIL on validation"),
     "parity": ("bgap.parity", "compare the vector backend with highway-env"),
     "figures": ("bgap.figures", "the study's figures, claims and results page"),
     "zoo": ("bgap.zoo", "export trained run folders into the zoo (kept in git)"),

@@ -44,6 +44,7 @@ COMMANDS = (
     "bgap.pipeline",
     "bgap.zoo",
     "bgap.watch",
+    "bgap.tune_rule",
 )
 MAX_LINES = 40
 

@@ -359,6 +359,7 @@ def test_a_rehearsal_trains_every_arm_at_the_tiny_profile():
     for entry in (*params["study"].values(), *params["learner_arms"].values()):
         assert entry["seeds"] == "[0]" and entry.get("profile", "tiny") == "tiny"
     assert all(item["profile"] == "tiny" for item in params["learners"].values())
+    assert params["tune_rule"] == {"trials": 2, "episodes": 2}  # the tuned rule's search too
 
 
 def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):

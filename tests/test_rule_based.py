@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bgap.agents.policies import rollout
-from bgap.agents.rule_based import RuleBasedEgo, idm
+from bgap.agents.rule_based import DEFAULT, RuleBasedEgo, RuleParams, TunedRule, idm
 from bgap.common.vocab import FASTER, IDLE, LANE_LEFT, LANE_RIGHT, SLOWER
 from bgap.traffic.scenario import env_config
 from tests.conftest import make_cfg
@@ -64,3 +64,56 @@ def test_rule_based_ego_avoids_the_crashes_idle_has_in_dense_conservative_traffi
     assert idle.crashed.mean() > 0.2  # idle's known weakness in this traffic ...
     assert rule.crashed.mean() < idle.crashed.mean() / 4  # ... which the rule-based ego avoids
     assert rule.avg_speed.mean() > 0.9 * idle.avg_speed.mean()  # not by crawling
+
+
+@pytest.mark.parametrize("politeness", [0.0, 1.0])
+def test_mobil_with_politeness_decides_as_highway_envs_mobil(politeness):
+    """A leader 60 m ahead at 22 m/s; the right lane free but for a follower 50 m back at
+    27 m/s. Alone, the ego gains by moving right; counting the follower's loss (politeness
+    1) it stays. highway-env's ``IDMVehicle.mobil`` with the same parameters decides."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    params = RuleParams(politeness=politeness, lane_change_max_braking_imposed=4.0)
+    env, _ = _scene((100.0, 0, 25.0, 25.0), (160.0, 0, 22.0, 30.0), (50.0, 1, 27.0, 30.0))
+    road = env.unwrapped.road
+    obs = env.unwrapped.observation_type.observe()
+    ours = int(RuleBasedEgo(params=params)(obs[None])[0])
+    ego = road.vehicles[0]
+    reference = IDMVehicle(road, ego.position, speed=25.0, target_speed=30.0)
+    reference.POLITENESS = politeness
+    reference.LANE_CHANGE_MAX_BRAKING_IMPOSED = 4.0
+    road.vehicles[0] = reference
+    assert (ours == LANE_RIGHT) == reference.mobil(("0", "1", 1))
+    assert (ours == LANE_RIGHT) == (politeness == 0.0)  # the case tells the two apart
+
+
+def test_idm_only_keeps_its_lane_and_defaults_keep_the_rule():
+    """IDM only never asks for a lane change where the rule overtakes, and the rule with
+    the default parameters spelled out decides as the default rule."""
+    env, _ = _scene((100.0, 3, 25.0, 25.0), (125.0, 3, 10.0, 10.0))
+    obs = env.unwrapped.observation_type.observe()[None]
+    assert int(RuleBasedEgo()(obs)[0]) == LANE_LEFT
+    assert int(RuleBasedEgo(lane_changes=False)(obs)[0]) == SLOWER
+    spelled = RuleParams(**{k: getattr(DEFAULT, k) for k in DEFAULT.__dataclass_fields__})
+    assert int(RuleBasedEgo(params=spelled)(obs)[0]) == LANE_LEFT
+
+
+def test_tuned_reads_the_preset_of_the_traffic_and_refuses_a_missing_one(tmp_path, monkeypatch):
+    """rule_tuned plays the preset whose observed vehicles match the environment's (the
+    stock preset in stock traffic), and names the stage to run where none does."""
+    from bgap.agents import rule_based as module
+    from bgap.common.errors import ConfigError
+    from bgap.common.presets import write_preset
+
+    def path(group: str, name: str):
+        return tmp_path / group / f"{name}.yaml"
+
+    monkeypatch.setattr(module, "preset_path", path)
+    preset = TunedRule(time_wanted=2.5, situation="dense", observed_vehicles=40)
+    write_preset(preset, "rule", path("rule", "dense"), "test preset", "test")
+    dense = {"observation": {"vehicles_count": 40}, "behavior": {"name": "paper"}}
+    assert module.tuned(dense).time_wanted == 2.5
+    with pytest.raises(ConfigError, match="5 observed vehicles"):
+        module.tuned({"observation": {"vehicles_count": 5}, "behavior": {"name": "paper"}})
+    with pytest.raises(ConfigError, match="stock traffic"):
+        module.tuned({**dense, "behavior": {"name": "stock"}})

@@ -1,6 +1,7 @@
 """Policies by name or file: the scripted baselines and saved models of any SB3 algorithm.
 
-A policy spec is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``); the path
+A policy spec is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``,
+``rule_tuned``, ``idm``); the path
 of a saved Stable-Baselines3 model (``model.zip`` or its run folder; DQN, QR-DQN, PPO, A2C,
 SAC and TD3 are recognised from the file, or named as ``ppo:path``), a zoo name
 (``zoo:main/sparse/behavior_rich/s0``, :mod:`bgap.agents.zoo`) or a loaded model, played
@@ -20,7 +21,7 @@ import numpy as np
 
 from bgap.agents import zoo
 from bgap.agents.observation import ObservationFeatures, model_features
-from bgap.agents.rule_based import rule_based
+from bgap.agents.rule_based import DEFAULT, rule_based, tuned
 from bgap.common.errors import ConfigError
 from bgap.common.runs import read_or_refuse
 from bgap.common.vocab import BASELINES, IDLE, LANE_LEFT, N_ACTIONS
@@ -33,10 +34,12 @@ __all__ = ["as_policy", "baseline", "check_rows", "greedy", "load_model", "model
 def baseline(name: str, config: dict[str, Any] | None = None) -> Policy:
     """A scripted ego: ``idle`` holds lane and speed, ``left`` always asks for the left
     lane, ``random`` draws a meta-action uniformly from the episode's stream, ``rule`` drives
-    by IDM and MOBIL (:mod:`bgap.agents.rule_based`, for the lanes and speeds of the
-    environment ``config``)."""
-    if name == "rule":
-        driver = rule_based(config)
+    by IDM and MOBIL with highway-env's parameters, ``rule_tuned`` with the ones tuned for
+    the traffic of ``config``, ``idm`` by IDM in its lane (:mod:`bgap.agents.rule_based`, for
+    the lanes and speeds of the environment ``config``)."""
+    if name in ("rule", "rule_tuned", "idm"):
+        params = tuned(config or {}) if name == "rule_tuned" else DEFAULT
+        driver = rule_based(config, params, lane_changes=name != "idm")
         return lambda obs, rngs: driver(obs)
     if name == "idle":
         return lambda obs, rngs: np.full(len(obs), IDLE)

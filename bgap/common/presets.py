@@ -48,20 +48,28 @@ def write_preset(node: Any, group: str, path: str | Path, note: str, owner: str)
     path = Path(path)
     if owner not in note:
         raise ValueError(f"the note must name the owner {owner!r}")  # a caller's bug
-    if path.exists():
-        try:
-            first = path.read_text().partition("\n")[0]
-        except (OSError, UnicodeDecodeError):
-            first = ""
-        if owner not in first:
-            raise ConfigError(
-                f"{path} holds a preset this run did not write ({first[:80] or 'not a preset'}"
-                "); give the preset another path (preset=... or a new root), or remove that file"
-            )
+    check_owner(path, owner)
     path.parent.mkdir(parents=True, exist_ok=True)
     body = OmegaConf.to_yaml(OmegaConf.structured(node))
     body = "\n".join(line for line in body.splitlines() if not line.endswith(": null"))
     return write_atomic(path, f"# {note}\ndefaults:\n  - base_{group}\n{body}\n")
+
+
+def check_owner(path: str | Path, owner: str) -> None:
+    """Refuse a preset file at ``path`` whose first line does not name ``owner``: another
+    run's preset or a user's file (:func:`write_preset`; a search checks before it starts)."""
+    path = Path(path)
+    if not path.exists():
+        return
+    try:
+        first = path.read_text().partition("\n")[0]
+    except (OSError, UnicodeDecodeError):
+        first = ""
+    if owner not in first:
+        raise ConfigError(
+            f"{path} holds a preset this run did not write ({first[:80] or 'not a preset'}"
+            "); give the preset another path (preset=... or a new root), or remove that file"
+        )
 
 
 def selection_hint(group: str, path: str | Path) -> str:

@@ -39,9 +39,18 @@ sends it to envs whose first episode ended."""
 # ---------------------------------------------------------------- experiment names
 POLICIES = ("behavior_rich", "default")
 """Trained policy families: trained in behaviour-rich traffic, or in stock traffic."""
-BASELINES = ("idle", "random", "left", "rule")
+BASELINES = ("idle", "random", "left", "rule", "rule_tuned", "idm")
 """Scripted ego policies evaluated beside trained ones (``rule``: IDM + MOBIL over the
-meta-actions, :mod:`bgap.agents.rule_based`)."""
+meta-actions with highway-env's parameters, ``rule_tuned`` with tuned ones, ``idm``: IDM in
+its lane; :mod:`bgap.agents.rule_based`)."""
+YARDSTICK_NAMES = {
+    "rule": "the rule-based ego",
+    "rule_tuned": "the tuned rule-based ego",
+    "idm": "IDM in its lane",
+}
+"""The hand-built drivers a learned policy is read against, and their names in prose: it
+"beats the hand-built driver" only by beating each of them."""
+YARDSTICKS = tuple(YARDSTICK_NAMES)
 LEARNERS = ("sb3", "batched")
 """Training algorithms' implementations: Stable-Baselines3's DQN (the reference, one training
 per process) and :mod:`bgap.agents.batched` (many trainings in lock step)."""

@@ -208,6 +208,8 @@ def rehearsal(params: dict) -> None:
         for item in params["learners"].values():
             if "profile" in item:
                 item["profile"] = "tiny"
+    if "tune_rule" in params:  # (older commits have no tuned rule)
+        params["tune_rule"].update(trials=2, episodes=2)
     params["parity"] = {"episodes": 2, "duration": 2}
     params["calibrate_sumo"].update(trials=2, episodes=1, warmup=2)
     if "replay" in params:  # (older commits have no replay cells)

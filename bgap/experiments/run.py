@@ -28,7 +28,7 @@ from bgap.common.runs import (
     save_run_metadata,
     write_atomic,
 )
-from bgap.common.vocab import POLICIES
+from bgap.common.vocab import POLICIES, YARDSTICK_NAMES, YARDSTICKS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.evaluate import (
     compact,
@@ -146,25 +146,27 @@ def idle_flags(summary, cfg: ExperimentConfig) -> list[str]:
 
 
 def rule_verdicts(summary) -> list[str]:
-    """A line per trained policy and cell read against the rule-based ego on the same
-    episodes: collisions per 100 km and speed, and whether it beats the rule-based ego, is
+    """A line per trained policy, cell and hand-built driver (the rule-based ego with
+    highway-env's and with tuned parameters, IDM in its lane: those evaluated) read on the
+    same episodes: collisions per 100 km and speed, and whether the policy beats it, is
     beaten by it, or trades speed for safety either way
     (:func:`bgap.analysis.stats.versus_rule`)."""
-    if "per_100km" not in summary or "rule" not in set(summary.policy):
+    if "per_100km" not in summary:
         return []
     lines = []
-    rule = summary[summary.policy == "rule"].set_index(["mix", "density", "radius"])
-    for r in summary[summary.policy.str.contains("|".join(POLICIES))].itertuples():
-        key = (r.mix, r.density, r.radius)
-        if key not in rule.index:
-            continue
-        b = rule.loc[key]
-        verdict = versus_rule(r.per_100km, r.avg_speed, b.per_100km, b.avg_speed)
-        lines.append(
-            f"{r.policy} against the rule-based ego (mix {r.mix:g}, radius {r.radius:g}): "
-            f"{r.per_100km:.1f} collisions per 100 km at {r.avg_speed:.2f} m/s; rule "
-            f"{b.per_100km:.1f} at {b.avg_speed:.2f} m/s: {VERDICTS[verdict]}"
-        )
+    for name in [y for y in YARDSTICKS if y in set(summary.policy)]:
+        yard = summary[summary.policy == name].set_index(["mix", "density", "radius"])
+        for r in summary[summary.policy.str.contains("|".join(POLICIES))].itertuples():
+            key = (r.mix, r.density, r.radius)
+            if key not in yard.index:
+                continue
+            b = yard.loc[key]
+            verdict = versus_rule(r.per_100km, r.avg_speed, b.per_100km, b.avg_speed)
+            lines.append(
+                f"{r.policy} against {YARDSTICK_NAMES[name]} (mix {r.mix:g}, radius "
+                f"{r.radius:g}): {r.per_100km:.1f} collisions per 100 km at {r.avg_speed:.2f} "
+                f"m/s; {name} {b.per_100km:.1f} at {b.avg_speed:.2f} m/s: {VERDICTS[verdict]}"
+            )
     return lines
 
 

@@ -1,0 +1,5 @@
+from bgap.runner.numerics import command
+
+main = command("bgap.experiments.tune_rule")
+if __name__ == "__main__":
+    main()
