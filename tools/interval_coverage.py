@@ -15,6 +15,7 @@ from bgap.analysis.coverage import (
     difference_table,
     paired_table,
     scene_table,
+    yardstick_table,
 )
 
 
@@ -43,6 +44,7 @@ def main(studies: int = 1000) -> None:
         markdown(paired_table(studies), "The same models in two conditions (300 and 600 episodes)")
     )
     print(markdown(scene_table(studies), "The same models on the same 700 scenes (two radii)"))
+    print(markdown(yardstick_table(studies), "Learned policies against a yardstick (700 episodes)"))
 
 
 if __name__ == "__main__":

@@ -29,6 +29,7 @@ from bgap.analysis.intervals import (
     t_test,
 )
 from bgap.analysis.stats import seed_bootstrap_diff, seed_rate_interval, t_interval
+from bgap.analysis.yardsticks import compare
 
 
 def _seed_t(y: np.ndarray, level: float = LEVEL) -> tuple[float, float, float]:
@@ -287,3 +288,53 @@ def scene_coverage(
 def scene_table(studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0) -> list:
     """:func:`scene_coverage` in every :data:`PAIRED` setting (700 shared scenes)."""
     return _rows(PAIRED, scene_coverage, (700, 700), studies, seeds, seed)
+
+
+def yardstick_coverage(
+    design: Design, ratio: float = 1.5, studies: int = 1000, seed: int = 0
+) -> dict[str, dict[str, float]]:
+    """:func:`coverage` of a learned arm's collisions per 100 km less a yardstick's, the
+    interval :mod:`bgap.analysis.yardsticks` prints: the yardstick is one driver of crash
+    rate ``ratio`` x the design's, playing the arm's episodes (their difficulty shared); an
+    episode drives 1 km, or half of it where it ends in a crash; one cell."""
+    rng = np.random.default_rng(seed)
+    yard_rate = design.rate * ratio
+    # the truth: each seed's crashes over its kilometres, over a population of episodes
+    truth_rng = np.random.default_rng(12345)
+    f = design.episode_factors(truth_rng, 20_000)
+
+    def per_100km(rates: np.ndarray) -> np.ndarray:
+        p = np.minimum(rates[:, None] * f[None, :], 1.0)
+        return p.mean(axis=1) / (1.0 - 0.5 * p).mean(axis=1) * 100.0
+
+    seeds_truth = np.concatenate([per_100km(design.seed_rates(truth_rng, 500)) for _ in range(20)])
+    truth = float(seeds_truth.mean() - per_100km(np.array([yard_rate]))[0])
+
+    def sides(y: np.ndarray) -> tuple:
+        """Crashes, kilometres' metres and speeds of a crash table."""
+        return y, 1000.0 * (1 - 0.5 * y), np.full(y.shape, 25.0)
+
+    mixes = np.zeros(design.episodes)
+    diffs, bounds = [], []
+    for _ in range(studies):
+        factors = design.episode_factors(rng, design.episodes)
+        ya = design.play(rng, design.seed_rates(rng, design.seeds), factors)
+        yb = design.play(rng, np.array([yard_rate]), factors)
+        result = compare(sides(ya), sides(yb), mixes)
+        diffs.append(result["diff"])
+        bounds.append((result["diff_lo"], result["diff_hi"]))
+    return {"printed": _summary(diffs, truth, bounds)}
+
+
+def yardstick_table(
+    studies: int = 1000, seeds: tuple[int, ...] = (3, 5, 10), seed: int = 0
+) -> list[dict]:
+    """:func:`yardstick_coverage` at the rates and seed spreads of :func:`coverage_table`,
+    700 shared episodes (the seven cells of a density), a yardstick 1.5 x as likely to crash."""
+    rows = []
+    for name, kwargs in SETTINGS.items():
+        for s in seeds:
+            result = yardstick_coverage(Design(s, episodes=700, **kwargs), studies=studies,
+                                        seed=seed)  # fmt: skip
+            rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
+    return rows

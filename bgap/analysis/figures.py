@@ -17,6 +17,8 @@ pipeline's stage: ``results/``):
   difference, its 95% interval and the Holm-corrected one, p-values, sample sizes and the
   verdict;
 - ``own_traffic.csv``: whether each trained policy beats idle in its own training traffic;
+- ``yardsticks.csv``: each learned policy family against each hand-built driver, paired on
+  the same episodes (:mod:`bgap.analysis.yardsticks`);
 - ``table2.md``: Table II with every policy of ours in the same cell;
 - ``figures/``: ``fig4.png`` (and ``fig4_<arm>.png`` per other arm), ``fig6.png``,
   ``paper_vs_ours.png`` (the paper's bars beside ours), ``ablation.png`` (training mix);
@@ -39,8 +41,8 @@ from pathlib import Path
 from bgap.analysis.plots import make_figures
 from bgap.common.cli import OneLineParser, run
 
-WRITTEN = ("README.md", "cells.csv", "claims.csv", "own_traffic.csv", "table2.md",
-           "metrics.json", "figures")  # fmt: skip
+WRITTEN = ("README.md", "cells.csv", "claims.csv", "own_traffic.csv", "yardsticks.csv",
+           "table2.md", "metrics.json", "figures")  # fmt: skip
 """What :func:`bgap.analysis.plots.make_figures` writes into ``--out``."""
 
 

@@ -21,10 +21,12 @@ from bgap.analysis.tables import (
     table2,
     yardstick_markdown,
 )
+from bgap.analysis.yardsticks import MIN_SEEDS as YARDSTICK_SEEDS
+from bgap.analysis.yardsticks import markdown as yardstick_versus
 from bgap.common.vocab import SPEED_FLOOR
 
 
-def readme(df, stats, table, own, sources, models, paths, yard, left_out=()) -> str:
+def readme(df, stats, table, own, sources, models, paths, yard, left_out=(), versus=None) -> str:
     ablated = ablation_table(df)
     trained = df[df.train_seed >= 0]
     seeds = trained.groupby(["arm", "density", "family"]).train_seed.nunique()
@@ -77,6 +79,20 @@ def readme(df, stats, table, own, sources, models, paths, yard, left_out=()) -> 
         "(each seed's pooled value: its crashes over its kilometres in each cell, averaged "
         "over the cells); `figures/yardstick.png` draws this table.\n",
         yardstick_markdown(stats, table, yard) if len(table) else "(no claims: one family only)\n",
+        "### Against every hand-built driver, paired on the same episodes\n",
+        "The rule-based ego above runs highway-env's default parameters. Beside it: the same "
+        "rule with IDM's and MOBIL's parameters tuned by Optuna on validation episodes of "
+        "its own (`bgap.tune_rule`, seeds apart from every other search's and from the "
+        "tests; `results/yardsticks/`), and IDM alone, which keeps its lane. A learned policy "
+        "*beats the hand-built driver* in a density only by beating each of the three: "
+        "fewer collisions per 100 km, the whole 95% interval of the difference below zero, "
+        f"at a mean speed of at least {RULE_FLOOR:g} x theirs. Each yardstick plays the "
+        "policy's own episodes, so the difference is paired: its interval counts the "
+        "training seeds and the shared episodes (`bgap.analysis.yardsticks`; its simulated "
+        f"coverage: `docs/intervals.md`). A verdict needs {YARDSTICK_SEEDS} training "
+        "seeds. Pooled over the cells of the table above; `yardsticks.csv` holds every "
+        "number.\n",
+        yardstick_versus(versus) if versus is not None else "(not computed)\n",
         "### Collisions by fault and by time\n",
         "Beside all collisions (the paper's count, which every claim and verdict on this page "
         "uses), the same cells split by fault and by time: *at fault* counts the ego's own "

@@ -24,8 +24,10 @@ from bgap.analysis.page import readme
 from bgap.analysis.paper import PAPER_CRASHES
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, keeps_up, versus_rule
 from bgap.analysis.tables import Yardstick, table2, yardstick_cells
+from bgap.analysis.yardsticks import versus_yardsticks
 from bgap.common.plotting import pyplot
 from bgap.common.runs import write_atomic
+from bgap.common.vocab import YARDSTICK_NAMES
 
 
 # ---------------------------------------------------------------------- figures
@@ -228,7 +230,8 @@ def yardstick(yard: Yardstick, path: Path) -> bool:
     collisions per 100 km against its speed pooled over the dense cells (95% intervals across
     training seeds); right, the default policy's collision % against its speed in dense stock
     traffic (:func:`bgap.analysis.episodes.cell_stats`' intervals). The rule-based ego is the
-    star; the shaded corner is where a policy meets the rule. Symmetric-log x axes keep the
+    star (the tuned rule and IDM alone, where evaluated, in grey); the shaded corner is where
+    a policy meets the rule. Symmetric-log x axes keep the
     authors' configuration on the page without crowding the learners."""
     dense, stock = yard.dense, yard.stock
     if ("", "rule") not in dense.index:
@@ -270,6 +273,16 @@ def yardstick(yard: Yardstick, path: Path) -> bool:
                           [max(rule[f"{metric}_hi"] - rule[metric], 0)]],
                     yerr=[[max(rule.avg_speed - rule.avg_speed_lo, 0)],
                           [max(rule.avg_speed_hi - rule.avg_speed, 0)]])  # fmt: skip
+        for name, marker in (("rule_tuned", "D"), ("idm", "X")):  # the other yardsticks
+            if ("", name) not in table.index:
+                continue
+            y = table.loc[("", name)]
+            ax.errorbar(y[metric], y.avg_speed, capsize=3, ls="none", marker=marker, ms=8,
+                        color="0.35", label=YARDSTICK_NAMES[name],
+                        xerr=[[max(y[metric] - y[f"{metric}_lo"], 0)],
+                              [max(y[f"{metric}_hi"] - y[metric], 0)]],
+                        yerr=[[max(y.avg_speed - y.avg_speed_lo, 0)],
+                              [max(y.avg_speed_hi - y.avg_speed, 0)]])  # fmt: skip
         top = max(ax.get_ylim()[1], floor + 1)
         rule_text = (
             f"fewer than it, at >= {RULE_FLOOR:g} x its speed"
@@ -340,7 +353,11 @@ def make_figures(
     yard = yardstick_cells(stats, df)
     if yardstick(yard, out / "figures" / "yardstick.png"):
         paths["yardstick"] = out / "figures" / "yardstick.png"
+    versus = versus_yardsticks(df)
+    paths["yardsticks"] = out / "yardsticks.csv"
+    write_atomic(paths["yardsticks"], lambda p: versus.to_csv(p, index=False))
     paths["readme"] = out / "README.md"
-    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard, left_out)
+    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard, left_out,
+                  versus)  # fmt: skip
     write_atomic(paths["readme"], page)
     return paths
