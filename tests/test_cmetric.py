@@ -357,6 +357,10 @@ def test_command_writes_scores_and_plot(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "mine_config.yaml").exists()
     bad = cmetric("cmetric.mu=-1")
     assert bad.returncode != 0 and "cmetric.mu=-1" in bad.stderr
+    # a vehicle to plot that the table lacks: one line before anything is scored or written
+    absent = cmetric("plot_vehicles=[999]", f"out={tmp_path / 'absent'}/")
+    assert absent.returncode == 2 and "no vehicle 999" in absent.stderr
+    assert absent.stderr.count("\n") == 1 and not (tmp_path / "absent").exists()
 
 
 # ----------------------------------------------------------------- labels of the simulator

@@ -239,6 +239,18 @@ def test_evaluating_a_zoo_name_plays_the_same_episodes_as_its_run_folder(
             "reads 5 observed vehicles",
         ),
         (
+            "bgap.evaluate",
+            ["models=[zoo:dqn/sparse/behavior_rich/s0]", "env.ego_speeds=[10,20,30]"],
+            r"trained with ego_speeds=\[10,15,20,25,30\], this environment has "
+            r"ego_speeds=\[10,20,30\]: .*under the settings its card records",
+        ),
+        (
+            "bgap.evaluate",
+            ["models=[zoo:dqn/sparse/behavior_rich/s0]", "env.policy_frequency=3"],
+            "trained with policy_frequency=1, this environment has policy_frequency=3",
+        ),
+        ("bgap.evaluate", ["models=[]", "baselines=[]"], "nothing to evaluate"),
+        (
             "bgap.watch",
             ["policy=rule", "traffic=replay", "traffic.table=missing.parquet"],
             "replayed traffic cannot be watched yet",

@@ -169,9 +169,14 @@ def played_under(archive: Path) -> dict[str, Any]:
     return dict(card(archive).get("played_under", {}))
 
 
-def check_played_under(archive: Path, env: dict[str, Any], override: bool = False) -> None:
-    """Refuse, in one line naming both values, to play a zoo policy under other settings of
-    :data:`PLAYED_UNDER` than it was trained for, unless ``override``."""
+OVERRIDE_FIX = "add zoo_override=true to play it anyway"
+
+
+def check_played_under(
+    archive: Path, env: dict[str, Any], override: bool = False, fix: str = OVERRIDE_FIX
+) -> None:
+    """Refuse, in one line naming both values and ``fix``, to play a zoo policy under other
+    settings of :data:`PLAYED_UNDER` than it was trained for, unless ``override``."""
     keys = {"ego_speeds": ("action", "target_speeds")}
     for key, wanted in played_under(archive).items():
         if key == "observed_vehicles":  # the network's input: check_rows refuses it, always
@@ -186,7 +191,7 @@ def check_played_under(archive: Path, env: dict[str, Any], override: bool = Fals
             raise ConfigError(
                 f"{name_of(archive)} was trained with {key}={_shown(wanted)}, this "
                 f"environment has {key}={_shown(have)}: play it in the environment it was "
-                "trained for, or add zoo_override=true to play it anyway"
+                f"trained for, or {fix}"
             )
 
 

@@ -87,6 +87,14 @@ def score(cfg: CMetricAppConfig, dcfg: DictConfig) -> None:
             )
     table = load_trajectories(source, fps=cfg.fps)  # a bad table fails before anything is written
     check_scoreable(table)
+    missing = sorted(set(cfg.plot_vehicles) - set(table.vehicle_id))
+    if missing:
+        shown = ", ".join(map(str, missing[:5])) + (" ..." if len(missing) > 5 else "")
+        raise ConfigError(
+            f"plot_vehicles={list(cfg.plot_vehicles)}: the table has no vehicle {shown}; plot "
+            f"some of its {table.vehicle_id.nunique()} vehicles (its vehicle_id column) or "
+            "leave plot_vehicles=[]"
+        )
     with ExitStack() as held:
         if folder is not None:
             held.enter_context(exclusive(folder))

@@ -129,6 +129,14 @@ def _evaluate_chunk(
     return [{**key, **row} for row in episodes.to_dict(orient="records")]
 
 
+EVALUATE_FIX = (
+    "evaluate it under the settings its card records (played_under), or watch or simulate it "
+    "with zoo_override=true"
+)
+"""What a refused zoo policy's line suggests in ``bgap.evaluate`` (which has no override:
+a study's table never mixes policies played under other settings than they trained for)."""
+
+
 def _check_densities(
     policies: dict[str, Any], cells: list[Cell], cfg: ExperimentConfig
 ) -> dict[str, int | None]:
@@ -237,6 +245,10 @@ def evaluate(
     _MODELS.clear()  # models loaded by an earlier evaluation here: their files may be new
     needed = _check_densities(policies, cells, cfg)
     configs = [cell_env_config(cfg, cell) for cell in cells]
+    for spec in policies.values():  # a zoo policy plays only under the settings it trained for
+        if isinstance(spec, (str, Path)) and zoo.card(Path(spec)):
+            for config in configs:
+                zoo.check_played_under(Path(spec), config, fix=EVALUATE_FIX)
     skipped = _own_density(needed, cells, configs)
     jobs = [
         (name, spec, cell, configs[k], seeds[i : i + chunk], cfg.backend)
@@ -533,9 +545,14 @@ def main(dcfg: DictConfig) -> None:
 
 def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
     out = Path(cfg.out or default_out(cfg))
+    specs = policy_specs(cfg)  # a bad model list fails before the folder is made
+    if not specs:
+        raise ConfigError(
+            "nothing to evaluate: models=[] and no baseline; give models=[RUN_DIR,...] (run "
+            "folders, model.zip files or zoo names) or baselines=[idle,random,rule]"
+        )
     with exclusive(out):  # a second evaluation into the same folder is refused
         save_run_metadata(out, dcfg)
-        specs = policy_specs(cfg)
         episodes = compact(evaluate(cfg, specs))  # what is stored is what is summarised
         summary = summarize(episodes)
         write_results(out, episodes, summary)
