@@ -59,8 +59,9 @@ def test_settings_a_command_would_drop_or_default_are_refused(
     assert not (tmp_path / "o").exists()  # refused before anything was written
 
 
+@pytest.mark.parametrize("backend", ["vector", "highway"])
 def test_replay_with_string_ids_plays_the_episodes_of_the_same_table_with_integer_ids(
-    table, tmp_path
+    table, tmp_path, backend
 ):
     from bgap.common.config import validate
     from bgap.experiments.evaluate import evaluate
@@ -75,7 +76,7 @@ def test_replay_with_string_ids_plays_the_episodes_of_the_same_table_with_intege
                 [
                     "traffic=replay",
                     f"traffic.table={tmp_path}/{name}.parquet",
-                    "backend=vector",
+                    f"backend={backend}",
                     "traffic.min_duration=10",
                     "env.duration=10",
                 ],
@@ -214,3 +215,28 @@ def test_generated_plus_and_tilde_overrides_are_refused_or_honoured(override):
         return
     assert override.startswith("+")  # only a key the schema knows may pass
     assert OmegaConf.select(OmegaConf.structured(used), key) is not None
+
+
+def test_a_file_where_the_output_folder_goes_and_a_full_disk_are_one_line(
+    tmp_path, monkeypatch, capsys
+):
+    """out= naming an existing file, and a disk that fills while results are written: one
+    line each, exit status 2, no traceback, the file untouched."""
+    import errno
+
+    from bgap.common import runs
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "notes.txt").write_text("mine\n")
+    args = ["baselines=[idle]", "profile.eval_episodes=1", "env.duration=2"]
+    status, _, err = command("bgap.evaluate", [*args, "out=notes.txt"], monkeypatch, capsys)
+    assert status == 2 and err.count("\n") == 1 and "is a file, not a folder" in err, err
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(runs, "write_atomic", full)
+    status, _, err = command("bgap.evaluate", [*args, "out=o"], monkeypatch, capsys)
+    assert status == 2 and err.count("\n") == 1 and "no space left" in err, err
+    assert "Traceback" not in err

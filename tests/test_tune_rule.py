@@ -55,3 +55,19 @@ def test_bad_settings_are_refused_in_one_line(bad, words, tmp_path, monkeypatch,
     status, _, err = command("bgap.tune_rule", args, monkeypatch, capsys)
     assert status == 2 and words in err and err.count("\n") == 1, err
     assert not list(tmp_path.iterdir())
+
+
+def test_the_tuned_rule_and_idm_play_as_baselines_of_an_evaluation(tmp_path, monkeypatch, capsys):
+    """The packaged presets (the tune_rule stage's) drive rule_tuned in both densities;
+    IDM alone never changes lane, the rule does."""
+    monkeypatch.chdir(tmp_path)
+    args = ["baselines=[rule,rule_tuned,idm]", "grid=paper", "grid.mixes=[0.5]",
+            "grid.radii=[180.0]", "profile.eval_episodes=4", "env.duration=10",
+            "out=e"]  # fmt: skip
+    status, _, err = command("bgap.evaluate", args, monkeypatch, capsys)
+    assert status == 0, err
+    episodes = pd.read_parquet(tmp_path / "e" / "episodes.parquet")
+    assert set(episodes.policy) == {"rule", "rule_tuned", "idm"}
+    assert set(episodes.density) == {"sparse", "dense"}
+    assert episodes[episodes.policy == "idm"].lane_changes.sum() == 0
+    assert episodes[episodes.policy == "rule"].lane_changes.sum() > 0

@@ -10,6 +10,7 @@ that are not known mistakes (bugs) keep their traceback.
 from __future__ import annotations
 
 import argparse
+import errno
 import math
 import os
 import shlex
@@ -90,8 +91,17 @@ def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
         fail(prog, f"interrupted: {err}", INTERRUPTED)
     except KeyboardInterrupt:
         fail(prog, f"interrupted: {on_interrupt}", INTERRUPTED)
+    except FileExistsError as err:  # a file where the command makes its folder
+        fail(prog, f"{err.filename} is a file, not a folder: give the output (out=, run_dir=) "
+             "a folder's path, or move that file")  # fmt: skip
     except known_errors() as err:
         fail(prog, one_line(err))
+    except OSError as err:
+        if err.errno != errno.ENOSPC:
+            raise
+        fail(prog, f"no space left on the device writing {err.filename or 'its output'}: free "
+             "some and run the same command again (what was finished is kept or redone, never "
+             "half-read)")  # fmt: skip
 
 
 def bare_first_argument(*keys: str) -> None:

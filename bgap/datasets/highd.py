@@ -82,7 +82,7 @@ def read_recording(tracks_path: Path, index: int) -> pd.DataFrame:
             "frame": (table.frame - first).astype(np.int32),
             "time": (table.frame - first) / fps,
             "vehicle_id": table.id.astype(np.int32),
-            "label": table["class"].str.lower(),
+            "label": table["class"].astype(str).str.lower(),  # a numeric class code too
             "is_ego": False,
             "x": sign * x,
             "y": sign * y,

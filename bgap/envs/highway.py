@@ -18,7 +18,7 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
-from bgap.envs.replay import ReplayScene, log_contact
+from bgap.envs.replay import ReplayScene, log_contact, recorded_id
 from bgap.traffic.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
 from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import (
@@ -154,7 +154,8 @@ class BehaviorHighwayEnv(HighwayEnv):
         )  # fmt: skip
         position, heading, speed = scene.ego_state()
         ego = self.action_type.vehicle_class(self.road, position, heading, speed)
-        ego.bgap_label, ego.bgap_id, ego.color = EGO, int(window.scene.ids[window.ego]), COLORS[EGO]
+        ego.bgap_label, ego.color = EGO, COLORS[EGO]
+        ego.bgap_id = recorded_id(window.scene, window.ego)
         self.controlled_vehicles = [ego]
         self.road.vehicles.insert(0, ego)
         self.replay_scene = scene

@@ -112,7 +112,7 @@ class ReplayScene:
             set_driver_params(vehicle, self.behavior[cls], self.rng)
             vehicle.own_v0 = self.behavior[cls].get("v0") is not None
             vehicle.bgap_label = cls
-            vehicle.bgap_id = int(scene.ids[v])
+            vehicle.bgap_id = recorded_id(scene, int(v))
             vehicle.color = COLORS[cls]
             self.road.vehicles.append(vehicle)
 
@@ -124,6 +124,13 @@ class ReplayScene:
         ]
         if self.frame < len(self.window.scene.state):
             self._add_entering()
+
+
+def recorded_id(scene: Any, v: int) -> int:
+    """The id a replayed vehicle carries in bgap's records: its table's integer id, or its
+    index in the scene where the table names vehicles by strings (a SUMO table's "v27")."""
+    value = scene.ids[v]
+    return int(value) if isinstance(value, (int, np.integer)) else v
 
 
 def log_contact(vehicles: list[Vehicle]) -> bool:
