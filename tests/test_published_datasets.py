@@ -153,3 +153,17 @@ def test_command_converts_a_highd_folder_and_needs_a_path(tmp_path):
     assert bad.returncode == 2 and "path=None is invalid" in bad.stderr
     assert len(bad.stderr.strip().splitlines()) == 1 and not (tmp_path / "bad").exists()
     assert np.isfinite(written[["x", "y", "vx", "vy"]].to_numpy()).all()
+
+
+def test_highd_classes_coded_as_numbers_are_read_as_text(tmp_path):
+    """A tracksMeta file whose class column holds codes (1, 2) instead of Car/Truck, as
+    some exports write it: the labels are the codes as text, not an AttributeError."""
+    from bgap.datasets import highd
+
+    _highd(tmp_path)
+    meta = pd.read_csv(tmp_path / "01_tracksMeta.csv")
+    meta["class"] = [1, 2, 1, 1]
+    meta.to_csv(tmp_path / "01_tracksMeta.csv", index=False)
+    table = highd.read(tmp_path / "01_tracks.csv")
+    first = table[table.frame == 0].set_index("vehicle_id")
+    assert first.label.to_dict() == {1: "1", 2: "2", 3: "1", 4: "1"}
