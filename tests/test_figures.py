@@ -476,9 +476,9 @@ def test_the_committed_selection_arm_replayed_other_tables():
 
 
 def test_the_readme_summary_agrees_with_the_committed_results():
-    """The README's summary restates the confirmatory headline and the count of policies
-    that beat idle: both must be what the figures stage wrote (claims.csv,
-    own_traffic.csv)."""
+    """The README's summary restates the confirmatory headline, the count of policies that
+    beat idle and the hand-built drivers' figures: each must be what the figures stage wrote
+    (claims.csv, own_traffic.csv, yardsticks.csv)."""
     root = Path(__file__).parents[1]
     text = " ".join((root / "README.md").read_text().split())
     table = pd.read_csv(root / "results/claims.csv")
@@ -501,6 +501,24 @@ def test_the_readme_summary_agrees_with_the_committed_results():
     assert said == (sparse.verdict == "not significant")
     own = pd.read_csv(root / "results/own_traffic.csv")
     assert f"{int(own.beats_idle.sum())} of the {len(own)} trained policies beat idle" in text
+    versus = pd.read_csv(root / "results/yardsticks.csv")
+    yards = versus.drop_duplicates(["density", "yardstick"]).set_index(["density", "yardstick"])
+    idm = yards.loc[("dense", "idm")]
+    assert (yards.xs("idm", level="yardstick").yard_per_100km == 0).all()
+    assert f"(0.0 per 100 km at {idm.yard_speed:.2f} m/s in dense traffic)" in text
+    assert ("no learned policy beats the hand-built driver" in text) == (not versus.beats_all.any())
+    for density, words in (("dense", "in dense traffic ({} against {} per"),
+                           ("sparse", "but not in sparse ({} against {}:")):  # fmt: skip
+        tuned, rule = (yards.loc[(density, y)].yard_per_100km for y in ("rule_tuned", "rule"))
+        assert words.format(f"{tuned:.1f}", f"{rule:.1f}") in text
+    ppo = versus[(versus.density == "dense") & (versus.arm == "learner-ppo")
+                 & (versus.family == "behavior_rich")].set_index("yardstick")  # fmt: skip
+    assert set(ppo.loc[["rule", "rule_tuned"]].verdict) == {"beats"}
+    r = ppo.loc["rule_tuned"]
+    assert (
+        f"({r.per_100km:.1f} per 100 km; against the tuned rule {r['diff']:+.1f} "
+        f"[{r.diff_lo:+.1f}, {r.diff_hi:+.1f}])" in text
+    )
 
 
 def test_collisions_split_by_fault_and_by_time():

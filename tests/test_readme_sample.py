@@ -24,7 +24,7 @@ def _sample(page: str) -> list[str]:
 
 
 def _is_result(line: str) -> bool:
-    return bool(re.match(r"(policy |behavior_rich|default|idle|random|rule)", line))
+    return bool(re.match(r"(policy |behavior_rich|default|idle|idm|random|rule)", line))
 
 
 @pytest.mark.slow
