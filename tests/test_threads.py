@@ -40,8 +40,10 @@ def _torch_threads_after_a_reset(how: str) -> int:
 def test_one_torch_thread_stays_one_after_the_simulators_first_kernel():
     """The hazard, as bgap.train meets it (a model built, then the first reset: numba's
     OpenMP layer starts and torch's count becomes numba's 2), and the helper that starts
-    that layer first so that 1 stays 1."""
-    assert _torch_threads_after_a_reset("plain") == 2
+    that layer first so that 1 stays 1. The hazard shows where the two share one OpenMP
+    runtime (2 on the Intel machines the study ran on); on others (an AMD EPYC) 1 stays 1
+    without the helper too, so only the helper's guarantee holds everywhere."""
+    assert _torch_threads_after_a_reset("plain") in (1, 2)
     assert _torch_threads_after_a_reset("helper") == 1
 
 
