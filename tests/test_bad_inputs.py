@@ -343,6 +343,29 @@ def test_ctrl_c_says_what_was_kept_and_how_to_continue(tmp_path, monkeypatch, ca
     assert _checksums() == repository
 
 
+def test_sigterm_stops_a_training_as_ctrl_c_does(tmp_path, monkeypatch, capsys):
+    """A scheduler's stop (SIGTERM) keeps the checkpoint and says how to resume, in one line."""
+    from bgap.agents.monitor import SB3Monitor
+
+    monkeypatch.chdir(tmp_path)
+    original = SB3Monitor._on_step
+    sent = []
+
+    def term(self):
+        if self.num_timesteps >= 100 and not sent:
+            sent.append(self.num_timesteps)
+            os.kill(os.getpid(), signal.SIGTERM)
+        return original(self)
+
+    monkeypatch.setattr(SB3Monitor, "_on_step", term)
+    before = signal.getsignal(signal.SIGTERM)
+    status, err = _command("train", ["profile=tiny", "run_dir=run"], monkeypatch, capsys)
+    last = err.strip().splitlines()[-1]  # after the progress bar
+    assert status == 130 and last.startswith("bgap.train: interrupted: training stopped"), err
+    assert "python -m bgap.train resume=true run_dir=run" in last and "Traceback" not in err
+    assert signal.getsignal(signal.SIGTERM) is before  # the command put the handler back
+
+
 def test_a_run_folder_of_other_settings_is_refused(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     args = ["env=sparse", "episodes=1", "env.duration=2", "backend=vector", "out=data"]

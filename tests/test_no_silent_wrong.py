@@ -7,6 +7,7 @@ thing)."""
 
 from __future__ import annotations
 
+import os
 import re
 
 import numpy as np
@@ -233,10 +234,57 @@ def test_a_file_where_the_output_folder_goes_and_a_full_disk_are_one_line(
     assert status == 2 and err.count("\n") == 1 and "is a file, not a folder" in err, err
     assert (tmp_path / "notes.txt").read_text() == "mine\n"
 
-    def full(path, data):
-        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+    faults = {
+        errno.ENOSPC: "no space left on the device writing o/",
+        errno.EROFS: "is on a read-only file system: give the output (out=, root=) a writable",
+        errno.EDQUOT: "the disk quota is used up",
+    }
+    for code, line in faults.items():
 
-    monkeypatch.setattr(runs, "write_atomic", full)
-    status, _, err = command("bgap.evaluate", [*args, "out=o"], monkeypatch, capsys)
-    assert status == 2 and err.count("\n") == 1 and "no space left" in err, err
-    assert "Traceback" not in err
+        def fault(path, data, code=code):
+            raise OSError(code, os.strerror(code), str(path))
+
+        monkeypatch.setattr(runs, "write_atomic", fault)
+        status, _, err = command("bgap.evaluate", [*args, f"out=o{code}"], monkeypatch, capsys)
+        assert status == 2 and err.count("\n") == 1 and line.replace("o/", f"o{code}/") in err
+        assert "Traceback" not in err and "run the same command again" in err, err
+
+    def broken(path, data):  # not a fault of the machine's: a bug keeps its traceback
+        raise OSError(errno.EIO, "Input/output error", str(path))
+
+    monkeypatch.setattr(runs, "write_atomic", broken)
+    with pytest.raises(OSError, match="Input/output"):
+        command("bgap.evaluate", [*args, "out=bug"], monkeypatch, capsys)
+
+
+@pytest.mark.parametrize("backend", ["vector", "highway"])
+def test_a_traffic_the_memory_cannot_hold_is_one_line(backend, tmp_path, monkeypatch, capsys):
+    """A hundred million vehicles: refused in one line with the estimate, before the
+    out-of-memory killer ends the process without a word; the library says the same."""
+    import gymnasium as gym
+
+    from bgap.common.errors import ConfigError
+
+    monkeypatch.chdir(tmp_path)
+    args = ["env.vehicles_count=100000000", f"backend={backend}", "episodes=1", "out=o"]
+    status, _, err = command("bgap.simulate", args, monkeypatch, capsys)
+    last = err.strip().splitlines()[-1]
+    assert status == 2 and "vehicles_count=100000000 needs about" in last, err
+    assert "GiB available: fewer vehicles" in last and "Traceback" not in err
+    with pytest.raises(ConfigError, match="needs about 298"):  # 3.2 kB a vehicle
+        gym.make("bgap/BehaviorHighway-v0", config={"vehicles_count": 10**8})
+
+
+def test_a_refused_calibration_target_leaves_no_folder_to_refuse_the_fix(
+    tmp_path, monkeypatch, capsys
+):
+    """A target table that is missing or has no labels is refused before the report folder
+    is written: the corrected command would otherwise meet "other settings"."""
+    monkeypatch.chdir(tmp_path)
+    pd.DataFrame({"episode": [0, 0], "vehicle_id": [1, 1], "frame": [0, 1], "x": [0.0, 1.0],
+                  "y": [0.0, 0.0]}).to_csv("unlabelled.csv", index=False)  # fmt: skip
+    for target, says in (("missing.csv", "no such file"), ("unlabelled.csv", "no 'label'")):
+        args = ["root=out", f"calibrate.target={target}"]
+        status, _, err = command("bgap.calibrate", args, monkeypatch, capsys)
+        assert status == 2 and says in err and "Traceback" not in err, err
+        assert not (tmp_path / "out").exists()

@@ -33,7 +33,7 @@ from omegaconf import DictConfig
 
 from bgap.agents.policies import rollout
 from bgap.calibration.config import SCHEMAS, CalibrateAppConfig
-from bgap.calibration.data import calibrate_to_data
+from bgap.calibration.data import calibrate_to_data, observe
 from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
@@ -313,9 +313,14 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
 def main(dcfg: DictConfig) -> None:
 
     cfg: CalibrateAppConfig = load(dcfg)
+    # a target table that cannot be read is refused before the folder is written, which would
+    # then refuse the corrected command as "other settings"
+    observed = observe(cfg) if cfg.calibrate.target else None
     save_run_metadata(report_dir(cfg), dcfg)
-    if cfg.calibrate.target:  # to a labelled table's statistics (bgap.calibrate_data)
-        summary = calibrate_to_data(cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg))
+    if observed is not None:  # to a labelled table's statistics (bgap.calibrate_data)
+        summary = calibrate_to_data(
+            cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg), observed=observed
+        )
     else:
         summary = calibrate(cfg)
     print(json.dumps(summary, indent=2))

@@ -421,13 +421,18 @@ def sensitivity(
 
 
 def calibrate_to_data(
-    cfg: CalibrateAppConfig, storage: str, preset: Path, report: Path, progress: bool = True
+    cfg: CalibrateAppConfig,
+    storage: str,
+    preset: Path,
+    report: Path,
+    progress: bool = True,
+    observed: Observed | None = None,
 ) -> dict[str, Any]:
-    """Observe the target, fit both classes, write the preset to ``preset`` and the report
-    into ``report`` (the Optuna study in ``storage``, a URL; :mod:`bgap.calibration.calibrate` names
-    the three as for the paper's mode)."""
+    """Observe the target (unless ``observed`` already), fit both classes, write the preset
+    to ``preset`` and the report into ``report`` (the Optuna study in ``storage``, a URL;
+    :mod:`bgap.calibration.calibrate` names the three as for the paper's mode)."""
     storage = open_storage(storage, key="calibrate.storage")  # a bad URL: at once
-    observed = observe(cfg)
+    observed = observe(cfg) if observed is None else observed
     if cfg.calibrate.scene_from_data:
         observed = replace(observed, vehicles_density=matched_density(cfg, observed))
     table1 = simulate(cfg, paper_behavior(), observed, bands=True)  # the report's and the penalty's

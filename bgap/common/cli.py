@@ -3,8 +3,9 @@
 Every ``python -m bgap.<command>`` runs through :func:`run`: a bad value, an unknown key, a
 missing file or a defective trajectory table ends the command with one line on stderr (what
 is wrong, the offending value, how to fix it) and exit status 2, never a traceback; Ctrl-C
-ends it with one line saying what was saved and how to continue, exit status 130. Errors
-that are not known mistakes (bugs) keep their traceback.
+or SIGTERM (a scheduler's or ``kill``'s stop) ends it with one line saying what was saved
+and how to continue, exit status 130. A machine fault (a full disk, a read-only folder) is
+one line and exit status 2. Errors that are not known mistakes (bugs) keep their traceback.
 """
 
 from __future__ import annotations
@@ -14,7 +15,9 @@ import errno
 import math
 import os
 import shlex
+import signal
 import sys
+import threading
 from collections.abc import Callable
 from typing import Any, NoReturn
 
@@ -85,6 +88,8 @@ def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
     """Run ``task`` with the one-line error style; ``on_interrupt`` says what a Ctrl-C keeps
     (an :class:`~bgap.common.errors.Interrupted` raised by the task says it instead)."""
     os.environ[ENV_COMMAND] = own_command()  # for the worker processes it starts
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _as_ctrl_c) if main else None
     try:
         return task()
     except Interrupted as err:
@@ -97,11 +102,37 @@ def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
     except known_errors() as err:
         fail(prog, one_line(err))
     except OSError as err:
-        if err.errno != errno.ENOSPC:
-            raise
-        fail(prog, f"no space left on the device writing {err.filename or 'its output'}: free "
-             "some and run the same command again (what was finished is kept or redone, never "
-             "half-read)")  # fmt: skip
+        if err.errno not in FAULTS:
+            raise  # not a fault of the machine: a bug, with its traceback
+        fail(prog, machine_fault(err))
+    finally:
+        if main:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _as_ctrl_c(signum: int, frame: Any) -> None:
+    """SIGTERM goes where Ctrl-C goes: to the running work's flag (a training stops between
+    two updates and keeps its checkpoint) or, with none, a ``KeyboardInterrupt``."""
+    handler = signal.getsignal(signal.SIGINT)
+    if not callable(handler):  # ignored or the system's default: stop here
+        raise KeyboardInterrupt
+    handler(signal.SIGINT, frame)
+
+
+FAULTS = {
+    errno.ENOSPC: "no space left on the device writing {file}: free some",
+    errno.EDQUOT: "the disk quota is used up writing {file}: free some",
+    errno.EROFS: "{file} is on a read-only file system: give the output (out=, root=) a "
+    "writable folder",
+}
+"""The machine faults a command reports in one line (errno: what happened, and the fix)."""
+
+
+def machine_fault(err: OSError) -> str:
+    """The one line for a machine fault (an ``OSError`` whose errno is in :data:`FAULTS`)."""
+    what = FAULTS[err.errno].format(file=err.filename or "its output")
+    return (f"{what}, and run the same command again (what was finished is kept or redone, "
+            "never half-read)")  # fmt: skip
 
 
 def bare_first_argument(*keys: str) -> None:

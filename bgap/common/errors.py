@@ -1,5 +1,6 @@
 """The error types that mean bad input (the command-line layer turns them into one line and
-exit status 2), and the check that raises the configuration one.
+exit status 2), the check that raises the configuration one, and the check that refuses
+what this machine's memory cannot hold.
 
 A leaf with no imports, so that CMetric (which stands alone on any trajectory file) and the
 simulator schemas can validate their values the same way without importing each other.
@@ -18,6 +19,21 @@ def check(ok: bool, key: str, value: Any, rule: str) -> None:
     """Raise :class:`ConfigError` naming ``key``, its ``value`` and the ``rule`` it breaks."""
     if not ok:
         raise ConfigError(f"{key}={value!r} is invalid: {rule}")
+
+
+def check_memory(nbytes: float, key: str, value: Any, fix: str) -> None:
+    """Refuse a setting whose memory (``nbytes``, estimated before anything is allocated)
+    exceeds what this machine has available: the out-of-memory killer ends a process with no
+    message, and numpy's lazily zeroed arrays would let it start first."""
+    import psutil  # imported here: the leaf's other checks need nothing
+
+    available = psutil.virtual_memory().available
+    if nbytes > available:
+        need, have = nbytes / 2**30, available / 2**30
+        raise ConfigError(
+            f"{key}={value!r} needs about {need:,.1f} GiB, and this machine has {have:,.1f} "
+            f"GiB available: {fix}"
+        )
 
 
 class TrajectoryError(ValueError):

@@ -21,12 +21,13 @@ from dataclasses import dataclass
 from typing import Any
 
 import gymnasium as gym
+import numba
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.common.errors import ConfigError, check
+from bgap.common.errors import ConfigError, check, check_memory
 from bgap.common.vocab import FINISHED
 from bgap.sim import core
 from bgap.sim.core import (
@@ -193,6 +194,12 @@ class VectorHighway(gym.vector.VectorEnv):
         self.speeds = np.asarray(cfg["action"].get("target_speeds", [20, 25, 30]), dtype=float)
         self.behavior = cfg["behavior"]
         n_veh, b = self.n + 1, self.num_envs
+        check_memory(
+            self._bytes_needed(),
+            "env.vehicles_count",
+            self.n,
+            "fewer vehicles" + (f", or fewer environments than {b}" if b > 1 else ""),
+        )
         self.f = np.zeros((b, n_veh, N_FLOAT))
         self.g = np.zeros((b, n_veh, N_INT), dtype=np.int64)
         self.p = np.zeros((b, n_veh, N_PARAM))
@@ -226,6 +233,15 @@ class VectorHighway(gym.vector.VectorEnv):
         self._others = np.full(b, self.n, dtype=np.int64)  # background vehicles per env
         if self.replay is not None:
             self._tracks, *self._track_index, self._track_of = self.replay.tracks()
+
+    def _bytes_needed(self) -> float:
+        """The state arrays of every environment, their recorded frames, and the pair list
+        (n (n - 1) / 2 indices) that each kernel thread holds while it checks collisions."""
+        n_veh, b = self.n + 1, self.num_envs
+        state = b * n_veh * (N_FLOAT + N_INT + N_PARAM + 3) * 8
+        frames = b * self.frames_per_step * n_veh * len(RECORD_FIELDS) * 8 if self.record else 0
+        pairs = min(b, numba.get_num_threads()) * n_veh * (n_veh - 1) / 2 * 8
+        return state + frames + pairs
 
     # ------------------------------------------------------------------ scenes
     def _spawn(self, envs: np.ndarray) -> None:
