@@ -519,6 +519,74 @@ def test_the_kept_checkpoint_has_the_highest_validation_return(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir() if p.suffix == ".zip") == ["best_model.zip"]
 
 
+def test_the_per_km_rule_prefers_safety_per_km_at_the_speed_floor_over_return(tmp_path):
+    """A collapsed policy (accelerate, never change lane: the best return, but 8 collisions
+    per 100 km) is not kept over one that validates better by the study's rule; a crawl under
+    0.9 x idle's speed loses to any policy fast enough; equal scores go to the faster, then
+    the later. Hand-computed: idle drives 25 m/s, so the floor is 22.5 m/s."""
+    from bgap.agents.monitor import TrainingMonitor
+
+    kept = []
+
+    class Policy:
+        def save(self, path):
+            kept.append(current)
+            Path(path).write_text(f"model {current}")
+
+    validations = [  # (return, collisions per 100 km, mean speed)
+        (40.0, 8.0, 29.5),  # 0: collapsed, first: kept for now
+        (35.0, 1.0, 27.0),  # 1: safer per km, fast enough: replaces 0
+        (30.0, 0.0, 20.0),  # 2: never crashes but crawls under 22.5: 100 + 11.1, kept out
+        (39.0, 1.0, 26.0),  # 3: as safe as 1 but slower: kept out
+        (38.0, 1.0, 27.0),  # 4: ties 1 exactly: the later, kept
+        (45.0, 8.0, 30.0),  # 5: the highest return, collapsed again: kept out
+    ]
+    monitor = TrainingMonitor(tmp_path, 1, {}, "vector", None, 0, 1, 0, checkpoint_rule="per_km")
+    for current, (ret, per_km, speed) in enumerate(validations):
+        record = {"episodes": 50 * (current + 1), "return": ret, "per_100km": per_km,
+                  "avg_speed": speed, "idle_avg_speed": 25.0}  # fmt: skip
+        monitor._keep_if_best(Policy(), record)
+    assert kept == [0, 1, 4]
+    assert (tmp_path / "best_model.zip").read_text() == "model 4"
+    by_return = TrainingMonitor(tmp_path / "r", 1, {}, "vector", None, 0, 1, 0)
+    (tmp_path / "r").mkdir()
+    kept.clear()
+    for current, (ret, _, _) in enumerate(validations):
+        by_return._keep_if_best(Policy(), {"episodes": current, "return": ret})
+    assert kept == [0, 5]  # the return rule keeps the collapsed policy
+
+
+def test_a_training_under_the_per_km_rule_keeps_every_validation_and_the_one_it_ranks_first(
+    tmp_path,
+):
+    """At the tiny profile: one kept model per validation, on the rule's own validation
+    block (idle's recorded figures are idle's on seeds 60000 + k, replayed here), and the
+    kept checkpoint is the one the rule ranks first, recomputed by hand from evaluations.csv."""
+    from bgap.experiments.config import CHECKPOINT_SEED
+    from bgap.experiments.train import train
+
+    cfg = exp_cfg("profile=tiny", "profile.checkpoint_rule=per_km", f"run_dir={tmp_path / 'r'}",
+                  "profile.eval_every_episodes=1", "profile.eval_during_training=3")  # fmt: skip
+    run = Path(train(cfg, progress=False))
+    table = pd.read_csv(run / "evaluations.csv")
+    assert len(table) >= 2
+    kept = sorted(p.name for p in (run / "validations").iterdir())
+    assert kept == [f"episode-{e:07d}.zip" for e in table.episodes]
+    idle = rollout(env_config(cfg), "idle", range(CHECKPOINT_SEED, CHECKPOINT_SEED + 3),
+                   cfg.backend).episodes  # fmt: skip
+    assert table.idle_avg_speed.iloc[0] == pytest.approx(idle.avg_speed.mean())
+    distance = (idle.avg_speed * idle.steps).sum() / env_config(cfg)["policy_frequency"]
+    assert table.idle_per_100km.iloc[0] == pytest.approx(idle.crashed.sum() / distance * 1e5)
+    floor = 0.9 * table.idle_avg_speed
+    short = 100 + 100 * (floor - table.avg_speed) / floor
+    score = np.where(table.avg_speed >= floor, table.per_100km, short)
+    order = sorted(range(len(table)), key=lambda i: (score[i], -table.avg_speed[i], -i))
+    chosen = int(table.episodes[order[0]])
+    assert json.loads((run / "best.json").read_text())["episodes"] == chosen
+    best = (run / "best_model.zip").read_bytes()
+    assert best == (run / f"validations/episode-{chosen:07d}.zip").read_bytes()
+
+
 def test_a_kill_while_the_first_checkpoints_state_is_written_leaves_none(tmp_path, monkeypatch):
     """Killed in the middle of writing the first checkpoint's state.pkl (a batched learner's
     second member while the first one's checkpoint was already in place: CI's failure):

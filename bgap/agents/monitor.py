@@ -31,6 +31,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from bgap.agents.policies import rollout
 from bgap.common.plotting import pyplot
 from bgap.common.runs import BEST_MODEL, CHECKPOINT_STATE, write_atomic
+from bgap.common.scores import PER_KM, constrained_score
 from bgap.runner.interrupt import CtrlC
 from bgap.sim.rollout import EpisodeStats
 
@@ -73,9 +74,13 @@ class TrainingMonitor:
     policy every ``eval_every`` episodes on seeded episodes of its own training traffic, keeps
     the best of those checkpoints, and writes checkpoints for resuming.
 
-    The best checkpoint (``best_model.zip``, described in ``best.json``) is the evaluation
-    with the highest mean validation return (ties: the later), the rule of SB3's
-    ``EvalCallback``: the training's own reward weighs crashes against speed. The paper keeps
+    The best checkpoint (``best_model.zip``, described in ``best.json``) is chosen by
+    ``checkpoint_rule`` (:func:`rank`). ``return``: the evaluation with the highest mean
+    validation return (ties: the later), the rule of SB3's ``EvalCallback``: the training's
+    own reward weighs crashes against speed. ``per_km``: the study's own reading, the fewest
+    collisions per 100 km among evaluations at least ``SPEED_FLOOR`` x idle's speed on the
+    same episodes, with every evaluation's parameters kept in ``validations/`` so that the
+    choice can be checked, or made again by another rule, without retraining. The paper keeps
     no checkpoint selection; the authors' code keeps the last model. Ours: one rule for every
     policy, on validation episodes only, so a training that ends in a bad stretch (seen in
     dense traffic) is not judged by its last parameters. (A rule on collisions at a floor of
@@ -92,6 +97,7 @@ class TrainingMonitor:
         eval_every, eval_episodes, eval_seed: evaluate every ``eval_every`` episodes (0: never)
             on ``eval_episodes`` episodes seeded ``eval_seed + k``.
         state: counters restored from a checkpoint (``episodes``, ``steps``, ``best``).
+        checkpoint_rule: ``return`` or ``per_km`` (:data:`~bgap.common.vocab.CHECKPOINT_RULES`).
         log: ``log(key, value)`` records a scalar (TensorBoard).
 
     The evaluated policy must have SB3's ``predict`` and ``save(path)`` (the best one is
@@ -109,6 +115,7 @@ class TrainingMonitor:
         eval_episodes: int,
         eval_seed: int,
         state: dict[str, Any] | None = None,
+        checkpoint_rule: str = "return",
         log: Callable[[str, float], None] = lambda key, value: None,
     ) -> None:
         self.run_dir = Path(run_dir)
@@ -120,6 +127,7 @@ class TrainingMonitor:
         self.recent: list[dict[str, Any]] = []
         self.log = log
         self.references: dict[str, dict[str, float]] | None = None
+        self.rule = checkpoint_rule
 
     def on_step(
         self, rewards: np.ndarray, infos: dict[str, Any], dones: np.ndarray, policy: Any
@@ -148,17 +156,20 @@ class TrainingMonitor:
         the gradient updates made so far and, for reference, the idle and rule-based egos'
         figures on the same episodes."""
         seeds = range(self.eval_seed, self.eval_seed + self.eval_episodes)
-        frame = rollout(self.env_config, policy, seeds, self.backend).episodes
+        per_km = self.rule == "per_km"
+        frequency = self.env_config.get("policy_frequency", 1)
+
+        def figures(played: Any) -> dict[str, float]:
+            episodes = rollout(self.env_config, played, seeds, self.backend).episodes
+            return _figures(episodes, frequency if per_km else None)
+
         if self.references is None:  # the same episodes every time: played once
-            self.references = {
-                name: _figures(rollout(self.env_config, name, seeds, self.backend).episodes)
-                for name in REFERENCES
-            }
+            self.references = {name: figures(name) for name in REFERENCES}
         record = {
             "episodes": self.state["episodes"],
             "steps": self.state["steps"],
             "gradient_updates": int(getattr(policy, "_n_updates", 0)),
-            **_figures(frame),
+            **figures(policy),
             **{f"{name}_{k}": v for name, row in self.references.items() for k, v in row.items()},
         }
         for key in ("collision_pct", "avg_speed", "lane_changes", "return"):
@@ -166,13 +177,17 @@ class TrainingMonitor:
         self.log("eval/gradient_updates", record["gradient_updates"])
         path = self.run_dir / "evaluations.csv"
         pd.DataFrame([record]).to_csv(path, mode="a", header=not path.exists(), index=False)
+        if per_km:  # every validation's parameters, small next to the replay buffer
+            kept = self.run_dir / validation_model(record["episodes"])
+            kept.parent.mkdir(exist_ok=True)
+            write_atomic(kept, policy.save)
         self._keep_if_best(policy, record)
         return record
 
     def _keep_if_best(self, policy: Any, record: dict[str, Any]) -> None:
         """Save ``policy`` as the best checkpoint if this evaluation ranks first so far."""
         best = self.state.get("best")
-        if best is not None and best["return"] > record["return"]:
+        if best is not None and rank(best, self.rule) < rank(record, self.rule):
             return  # ties: the later evaluation, which has trained longer
         self.state["best"] = dict(record)
         write_atomic(self.run_dir / BEST_MODEL, policy.save)  # whole or not at all
@@ -221,13 +236,36 @@ REFERENCES = ("idle", "rule")
 """Baselines whose validation figures each evaluation records beside the policy's."""
 
 
-def _figures(episodes: pd.DataFrame) -> dict[str, float]:
-    return {
+def validation_model(episodes: int) -> str:
+    """The run folder's file of the parameters validated after ``episodes`` episodes."""
+    return f"validations/episode-{episodes:07d}.zip"
+
+
+def rank(record: dict[str, Any], rule: str) -> tuple[float, ...]:
+    """A validation's place under ``rule``, lower first: ``return``, the mean validation
+    return; ``per_km``, the constrained score on kilometres
+    (:func:`~bgap.common.scores.constrained_score`: collisions per 100 km where the mean
+    speed reaches ``SPEED_FLOOR`` x idle's on the same episodes, else 100 + the shortfall),
+    then the faster. Equal ranks go to the later validation."""
+    if rule == "return":
+        return (-record["return"],)
+    score = constrained_score(record["per_100km"], record["avg_speed"], record["idle_avg_speed"])
+    return (score, -record["avg_speed"])
+
+
+def _figures(episodes: pd.DataFrame, policy_frequency: int | None = None) -> dict[str, float]:
+    """The validation's means; with ``policy_frequency``, collisions per 100 km too (each
+    episode's distance: its mean speed x its duration)."""
+    figures = {
         "collision_pct": 100 * float(episodes.crashed.mean()),
         "avg_speed": float(episodes.avg_speed.mean()),
         "lane_changes": float(episodes.lane_changes.mean()),
         "return": float(episodes["return"].mean()),
     }
+    if policy_frequency is not None:
+        distance = float((episodes.avg_speed * episodes.steps).sum()) / policy_frequency
+        figures["per_100km"] = float(episodes.crashed.sum()) / distance * PER_KM
+    return figures
 
 
 def plot_learning_curves(run_dir: Path) -> Path | None:

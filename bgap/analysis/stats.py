@@ -5,8 +5,8 @@ distance driven (collisions per 100 km) exact Poisson intervals; means get Stude
 intervals; differences between policies whose independent units are training
 seeds get a two-level bootstrap (:func:`seed_bootstrap`); a table of claims gets Holm's
 correction (:func:`holm`). The rule that judges a policy against the idle ego is here too
-(:func:`constrained_score`, :func:`beats_idle`), so the sweeps, bgap.run's flags and the
-results page apply one definition.
+(:func:`beats_idle`; the score choices rank by: :mod:`bgap.common.scores`), so the sweeps,
+bgap.run's flags and the results page apply one definition.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import numpy as np
 # these same functions): importing scipy.stats cost every command 1 s.
 from scipy.special import gammaincinv, stdtrit
 
+from bgap.common.scores import PER_KM
 from bgap.common.vocab import SPEED_FLOOR
 
 Z95 = 1.959964
@@ -51,10 +52,6 @@ def poisson_interval(k: int, exposure: float, level: float = 0.95) -> tuple[floa
     lo = 0.0 if k == 0 else gammaincinv(k, tail)  # chi2.ppf(tail, 2k) / 2
     hi = gammaincinv(k + 1, 1 - tail)  # chi2.ppf(1 - tail, 2k + 2) / 2
     return float(lo / exposure), float(hi / exposure)
-
-
-PER_KM = 100_000.0
-"""Metres in the unit of exposure-normalised safety: collisions per 100 km."""
 
 
 def per_100km(crashes: np.ndarray, distance: np.ndarray) -> tuple[float, float, float]:
@@ -397,17 +394,6 @@ def holm(pvalues: np.ndarray) -> np.ndarray:
     adjusted = np.empty_like(p)
     adjusted[order] = np.minimum(1.0, np.maximum.accumulate(scaled))
     return adjusted
-
-
-def constrained_score(
-    collision_pct: float, speed: float, idle_speed: float, floor: float = SPEED_FLOOR
-) -> float:
-    """Lower is better: the collision % of a policy whose mean speed reaches ``floor`` x idle's
-    on the same episodes; below that, 100 + the shortfall in % of the floor, so any policy fast
-    enough ranks above any that is not. Used by the constrained sweeps, the recipe's choice
-    and the selection of a training's best checkpoint."""
-    need = floor * idle_speed
-    return collision_pct if speed >= need else 100.0 + 100.0 * (need - speed) / need
 
 
 def beats_idle(

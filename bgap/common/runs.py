@@ -92,6 +92,7 @@ ADDED_LATER = {
     "checkpoint": "last",
     "reward.converged": True,
     "agent.converged": True,
+    "profile.checkpoint_rule": "return",
 }
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""

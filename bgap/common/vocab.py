@@ -57,6 +57,9 @@ per process) and :mod:`bgap.agents.batched` (many trainings in lock step)."""
 CHECKPOINTS = ("best", "last")
 """Which parameters of a training are evaluated: the validation-selected checkpoint or the
 final ones."""
+CHECKPOINT_RULES = ("return", "per_km")
+"""How a training chooses its best checkpoint among its validations: the highest mean return
+(SB3's ``EvalCallback``), or the fewest collisions per 100 km at a speed floor."""
 BACKENDS = ("highway", "vector")
 """Simulators: highway-env (the reference) and bgap's vectorised port."""
 MIX_SAMPLING = ("fixed", "uniform", "paper")
@@ -66,7 +69,7 @@ PAPER_MIXES = (0.0, 0.2, 0.4, 0.5, 0.6, 0.8, 1.0)
 SPEED_FLOOR = 0.9
 """A policy beats the idle ego when it crashes less at a mean speed of at least this fraction
 of idle's on the same episodes: safety bought by crawling is no win (ours). The
-same rule ranks recipe candidates (:func:`bgap.analysis.stats.constrained_score`)."""
+same rule ranks recipe candidates (:func:`bgap.common.scores.constrained_score`)."""
 ENDINGS = ("timeout", "rear_end", "rear_ended", "lane_change", "other")
 """How an episode ended: it ran its full duration; the ego ran into a vehicle ahead; a
 vehicle ran into the ego from behind; contact during or within 2 s after an ego lane change;

@@ -35,6 +35,7 @@ from bgap.experiments.training import (
     read_checkpoint,
     run_name,
     training_config,
+    validation_seed,
 )
 from bgap.runner.cluster import ClusterConfig
 from bgap.runner.interrupt import CtrlC
@@ -265,7 +266,7 @@ class _Members:
         return TrainingMonitor(
             self.dirs[k], self.e, env_config(c), c.backend, max_episodes=p.train_episodes,
             eval_every=p.eval_every_episodes, eval_episodes=p.eval_during_training,
-            eval_seed=c.val_seed, log=log,
+            eval_seed=validation_seed(c), checkpoint_rule=p.checkpoint_rule, log=log,
         )  # fmt: skip
 
     def _reset(self, space: gym.Space, resuming: list[bool]) -> np.ndarray:

@@ -14,6 +14,7 @@ from bgap.common import config as plumbing
 from bgap.common.errors import check
 from bgap.common.vocab import (
     BASELINES,
+    CHECKPOINT_RULES,
     CHECKPOINTS,
     LEARNERS,
     MIX_SAMPLING,
@@ -48,6 +49,13 @@ class ProfileConfig:
     """Episodes per grid cell of the final evaluation."""
     checkpoint_every: int = 1000
     """Steps between checkpoints (model and replay buffer)."""
+    checkpoint_rule: str = "return"
+    """Which validation a training keeps as ``best_model.zip``: ``return``, the highest mean
+    validation return (SB3's ``EvalCallback``), validated on ``val_seed + k``; ``per_km``, the
+    fewest collisions per 100 km among validations at least ``SPEED_FLOOR`` x idle's speed
+    on the same episodes (ties: the faster, then the later; the tuned rule's objective),
+    validated on :data:`CHECKPOINT_SEED` + k, with every validation's parameters kept in
+    ``validations/``."""
 
     def __post_init__(self) -> None:
         check(self.train_steps >= 1, "profile.train_steps", self.train_steps, "must be >= 1")
@@ -72,6 +80,18 @@ class ProfileConfig:
             "must be >= 1; profile.eval_every_episodes=0 turns validation off",
         )
         check(self.checkpoint_every >= 1, "profile.checkpoint_every", self.checkpoint_every, ">= 1")
+        check(
+            self.checkpoint_rule in CHECKPOINT_RULES,
+            "profile.checkpoint_rule",
+            self.checkpoint_rule,
+            f"use one of {list(CHECKPOINT_RULES)}",
+        )
+
+
+CHECKPOINT_SEED = 60_000
+"""The validation block of the ``per_km`` checkpoint rule (episode k: seed 60000 + k), apart
+from the sweeps' and the selection's (``val_seed``, 50000 + k), the tuned rule's (70000 + k)
+and the tests' (``eval_seed``, 100000 + k), so no other choice is made on these episodes."""
 
 
 @dataclass
@@ -240,6 +260,11 @@ class ExperimentConfig(BaseConfig):
             f"must be at least 10000 away from eval_seed={self.eval_seed} (validation and test "
             "episodes never share seeds)",
         )
+        if self.profile.checkpoint_rule == "per_km":
+            for key, seed in (("val_seed", self.val_seed), ("eval_seed", self.eval_seed)):
+                check(abs(seed - CHECKPOINT_SEED) >= 10_000, key, seed,
+                      f"must be at least 10000 away from {CHECKPOINT_SEED}, the per_km "
+                      "checkpoint rule's validation episodes")  # fmt: skip
         for density, table in self.grid.replay_tables():  # a table no episode can come from
             env = env_preset(density) if density else self.env  # fails here, in one line
             load_replay(table, env.simulation_frequency, self.traffic.min_duration)

@@ -34,13 +34,14 @@ from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import baseline, load_model, rollout
-from bgap.analysis.stats import constrained_score, per_100km, policy_score, rule_objective
+from bgap.analysis.stats import per_100km, policy_score, rule_objective
 from bgap.common import studies
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, as_before, digest, write_atomic
+from bgap.common.scores import constrained_score
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments import trial_log
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose

@@ -57,6 +57,7 @@ from bgap.experiments.training import (
     run_dir_for,
     run_name,
     training_config,
+    validation_seed,
 )
 from bgap.runner.cluster import ClusterConfig, connected, ship_folders
 from bgap.runner.jobs import run_jobs
@@ -166,7 +167,8 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
         max_episodes=p.train_episodes,
         eval_every=p.eval_every_episodes,
         eval_episodes=p.eval_during_training,
-        eval_seed=cfg.val_seed,  # validation episodes, never the test ones
+        eval_seed=validation_seed(cfg),  # validation episodes, never the test ones
+        checkpoint_rule=p.checkpoint_rule,
     )
     if resuming:
         state = read_checkpoint(ckpt, lambda: pickle.loads((ckpt / CHECKPOINT_STATE).read_bytes()))

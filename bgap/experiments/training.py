@@ -20,6 +20,7 @@ from bgap.agents.observation import MODEL_ATTRIBUTE
 from bgap.agents.per import PrioritizedReplayBuffer
 from bgap.common.errors import ConfigError
 from bgap.common.runs import (
+    ADDED_LATER,
     CHECKPOINT_STATE,
     VOLATILE,
     as_before,
@@ -27,7 +28,7 @@ from bgap.common.runs import (
     read_or_refuse,
     save_run_metadata,
 )
-from bgap.experiments.config import ExperimentConfig
+from bgap.experiments.config import CHECKPOINT_SEED, ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
 NOT_LEARNT = (
@@ -72,9 +73,16 @@ def training_identity(cfg: ExperimentConfig) -> dict[str, Any]:
     if cfg.learner != "sb3":  # (the SB3 runs' names predate this setting)
         keys["learner"] = cfg.learner
     keys["profile"] = {
-        k: v for k, v in asdict(cfg.profile).items() if k not in ("eval_episodes", "name")
+        k: v
+        for k, v in asdict(cfg.profile).items()
+        if k not in ("eval_episodes", "name") and ADDED_LATER.get(f"profile.{k}", ...) != v
     }
     return keys
+
+
+def validation_seed(cfg: ExperimentConfig) -> int:
+    """The first seed of a training's periodic validations: the checkpoint rule's block."""
+    return CHECKPOINT_SEED if cfg.profile.checkpoint_rule == "per_km" else cfg.val_seed
 
 
 def run_name(cfg: ExperimentConfig) -> str:

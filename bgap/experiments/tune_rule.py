@@ -8,7 +8,7 @@ at its best, not at highway-env's defaults.
 The objective, fixed before any test episode is played: collisions per 100 km over every
 validation episode (each cell of the grid, ``episodes`` each, seeded ``tune_seed + k``), among
 parameter sets whose mean speed reaches :data:`~bgap.common.vocab.SPEED_FLOOR` x idle's on
-the same episodes (the learners' constrained form, :func:`bgap.analysis.stats.constrained_score`,
+the same episodes (the learners' constrained form, :func:`bgap.common.scores.constrained_score`,
 on kilometres); ties go to the faster. Trial 0 is highway-env's defaults (the baseline
 ``rule``), so the chosen set is never worse than the default on validation. The seeds
 ``tune_seed + k`` (70000 + k) lie apart from every other search's validation episodes
@@ -33,12 +33,12 @@ import pandas as pd
 from omegaconf import DictConfig
 
 from bgap.agents.rule_based import DEFAULT, SITUATIONS, RuleParams, TunedRule, rule_based
-from bgap.analysis.stats import PER_KM, constrained_score
 from bgap.common.config import app, load
 from bgap.common.errors import check
 from bgap.common.plotting import pyplot
 from bgap.common.presets import check_owner, preset_path, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
+from bgap.common.scores import PER_KM, constrained_score
 from bgap.common.vocab import IDLE, SPEED_FLOOR
 from bgap.experiments.config import SCHEMAS as EXPERIMENT_SCHEMAS
 from bgap.experiments.config import ExperimentConfig
@@ -109,7 +109,7 @@ def play(cfg: TuneRuleConfig, driver: Callable[[dict], Any]) -> dict[str, float]
 
 def objective(figures: dict[str, float], idle_speed: float) -> float:
     """Lower is better: collisions per 100 km where the speed reaches the floor, else 100 +
-    the shortfall (:func:`~bgap.analysis.stats.constrained_score`)."""
+    the shortfall (:func:`~bgap.common.scores.constrained_score`)."""
     return constrained_score(figures["per_100km"], figures["avg_speed"], idle_speed, SPEED_FLOOR)
 
 

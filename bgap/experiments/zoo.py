@@ -24,7 +24,8 @@ from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, check
 from bgap.common.runs import CONFIG, MODEL, model_file, run_folders, write_atomic
 from bgap.common.tables import read_table
-from bgap.experiments.config import CHECKPOINTS
+from bgap.common.vocab import SPEED_FLOOR
+from bgap.experiments.config import CHECKPOINT_SEED, CHECKPOINTS
 from bgap.experiments.evaluate import run_records
 from bgap.runner.locks import exclusive
 
@@ -66,7 +67,8 @@ def card_of(run: Path, arm: str, checkpoint: str) -> dict[str, Any]:
     validation: dict[str, Any] = {}
     if chosen.name != MODEL and (run / "best.json").exists():
         best = json.loads((run / "best.json").read_text())
-        keep = ("episodes", "steps", "collision_pct", "avg_speed", "lane_changes", "return")
+        keep = ("episodes", "steps", "collision_pct", "per_100km", "avg_speed", "lane_changes",
+                "return")  # fmt: skip
         validation = {k: best[k] for k in keep if k in best}
     validated = (
         int(read_table(run / "evaluations.csv").episodes.max())
@@ -102,14 +104,7 @@ def card_of(run: Path, arm: str, checkpoint: str) -> dict[str, Any]:
         },
         "checkpoint": {
             "kept": checkpoint if chosen.name != MODEL else "last",
-            "rule": (
-                f"the highest mean return on {profile['eval_during_training']} validation "
-                f"episodes (seeds {cfg['val_seed']}-"
-                f"{cfg['val_seed'] + profile['eval_during_training'] - 1}), validated every "
-                f"{profile['eval_every_episodes']} training episodes"
-                if chosen.name != MODEL
-                else "the training's final model"
-            ),
+            "rule": _rule(cfg) if chosen.name != MODEL else "the training's final model",
             "validation": validation,
         },
         "played_under": {k: env[k] for k in zoo.PLAYED_UNDER},
@@ -121,6 +116,21 @@ def card_of(run: Path, arm: str, checkpoint: str) -> dict[str, Any]:
         ],
         "records": records,
     }
+
+
+def _rule(cfg: dict[str, Any]) -> str:
+    """How the run chose its checkpoint, with the validation episodes' seeds."""
+    profile = cfg["profile"]
+    per_km = profile.get("checkpoint_rule", "return") == "per_km"
+    first, n = (CHECKPOINT_SEED if per_km else cfg["val_seed"]), profile["eval_during_training"]
+    how = (
+        f"the fewest collisions per 100 km at {SPEED_FLOOR} x idle's speed or more (ties: the "
+        "faster)"
+        if per_km
+        else "the highest mean return"
+    )
+    return (f"{how} on {n} validation episodes (seeds {first}-{first + n - 1}), validated "
+            f"every {profile['eval_every_episodes']} training episodes")  # fmt: skip
 
 
 def export(run: Path, arm: str, out: Path, checkpoint: str = "best") -> Path:
