@@ -492,7 +492,10 @@ def test_kill_9_at_any_moment_then_resume_ends_with_the_uninterrupted_parameters
         assert _weights(run) == _weights(whole), f"repetition {k}: other weights"
 
 
-@pytest.mark.parametrize("learner", ["learner=sb3", "learner=batched"])
+@pytest.mark.parametrize(
+    "learner",
+    ["learner=sb3", pytest.param("learner=batched", marks=pytest.mark.slow)],  # time budget
+)
 def test_a_kill_after_the_last_checkpoint_before_model_zip_resumes_to_the_same_weights(
     tmp_path, learner
 ):
