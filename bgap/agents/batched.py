@@ -24,7 +24,7 @@ Why written here rather than taken from a library: SB3 trains one network per pr
 ``torch.func``'s model ensembling (``stack_module_state`` + ``vmap``) stacks the networks but
 not the optimizer, the per-member gradient clipping or the replay. The K networks are stacked
 into batched matrix products (``torch.baddbmm``; measured against ``vmap`` in
-``python -m bgap.bench learn``), so one forward and backward pass updates all members; Adam is
+``python tools/bench.py learn``), so one forward and backward pass updates all members; Adam is
 applied to the stacked tensors with a step count per member (``torch.optim.Adam`` keeps one
 count for all, and a member that has finished or not started must not move).
 
@@ -108,7 +108,7 @@ class StackedAdam:
     place on buffers kept between steps: torch's foreach path, equal to it bit for bit,
     allocates four tensors of every parameter's size per step, and on a CPU those
     allocations (fresh pages each time) cost more than the arithmetic
-    (``python -m bgap.bench learn``). A test holds it to torch's ``adam`` bit for bit.
+    (``python tools/bench.py learn``). A test holds it to torch's ``adam`` bit for bit.
     Members at different counts take torch's functional update per count."""
 
     def __init__(self, params: list[torch.Tensor], lr: float, betas=(0.9, 0.999), eps=1e-8):

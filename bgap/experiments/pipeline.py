@@ -12,6 +12,7 @@ byte-identical outputs (see :func:`relock`).
 from __future__ import annotations
 
 import ast
+import csv
 import filecmp
 import json
 import os
@@ -328,12 +329,18 @@ def _same(a: Path, b: Path) -> bool:
     (:func:`_sb3_data`). And for a run's resolved settings (``config.yaml``), where ``b``
     may hold settings that ``a``'s code did not have: every setting of ``a`` must be in
     ``b`` with the same value (a setting added with a default that reproduces the old
-    results; the other outputs show whether it does). Likewise a training checkpoint's
-    ``state.pkl`` (counters, running statistics, the environments' state), which may gain
-    fields that later code keeps, and SB3's replay buffer (``replay.pkl``), compared by its
-    fields (:func:`_kept`)."""
+    results; the other outputs show whether it does), and the same for the settings that
+    ``models.csv`` and the zoo's cards copy from it (:func:`_records_kept`). Likewise a
+    training checkpoint's ``state.pkl`` (counters, running statistics, the environments'
+    state), which may gain fields that later code keeps, and SB3's replay buffer
+    (``replay.pkl``), compared by its fields (:func:`_kept`)."""
     if a.name == CONFIG and b.name == CONFIG:
         return _kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
+    if a.name == b.name == MODELS:
+        with a.open(newline="") as fa, b.open(newline="") as fb:
+            return _records_kept(list(csv.DictReader(fa)), list(csv.DictReader(fb)))
+    if a.suffix == b.suffix == ".yaml" and "zoo" in a.parts and "zoo" in b.parts:
+        return _records_kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
     if a.name == b.name and a.name in (CHECKPOINT_STATE, REPLAY):
         return _kept(pickle.loads(a.read_bytes()), pickle.loads(b.read_bytes()))
     if a.suffix != ".zip":
@@ -346,6 +353,25 @@ def _same(a: Path, b: Path) -> bool:
             else za.read(n) == zb.read(n)
             for n in za.namelist()
         )  # fmt: skip
+
+
+MODELS = "models.csv"
+"""An evaluation's record of the run folders it played (each one's settings as JSON)."""
+
+
+def _records_kept(old: Any, new: Any) -> bool:
+    """Equal, except that a run's settings copied as a JSON object (``models.csv``'s
+    ``settings`` column, a zoo card's records) may gain settings, as ``config.yaml`` may."""
+    if isinstance(old, str) and isinstance(new, str) and old[:1] == new[:1] == "{":
+        try:
+            return _kept(json.loads(old), json.loads(new))
+        except json.JSONDecodeError:
+            return old == new
+    if isinstance(old, dict) and isinstance(new, dict):
+        return old.keys() == new.keys() and all(_records_kept(v, new[k]) for k, v in old.items())
+    if isinstance(old, list) and isinstance(new, list):
+        return len(old) == len(new) and all(map(_records_kept, old, new))
+    return bool(old == new)
 
 
 REPLAY = "replay.pkl"
