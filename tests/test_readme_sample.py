@@ -2,8 +2,8 @@
 prints today (slow: the main job trains two policies, about a minute on 2 cores).
 
 The baselines' lines are scripted and must match number for number on every machine. The two
-trained policies' lines are the same run after run on one machine, but two CI machines gave
-two trainings with the kernels pinned (PyTorch promises the same numbers only on the same
+trained policies' lines are the same run after run on one machine, but three machines gave
+three trainings with the kernels pinned (PyTorch promises the same numbers only on the same
 platform), so for them the sample must match in every word but the numbers and the verdict
 they lead to."""
 
