@@ -26,8 +26,7 @@ COMMANDS = {
     "zoo": ("bgap.zoo", "export trained run folders into the zoo (kept in git)"),
     "watch": ("bgap.watch", "render a policy (zoo name or model file) to a video"),
     "select": ("bgap.select", "keep the best of each group of training seeds on validation"),
-    "bench": ("bgap.bench", "benchmarks: simulator, learner, CMetric, cluster"),
-    "pipeline": ("bgap.pipeline", "the DVC pipeline's code deps; relock moved stages"),
+    "pipeline": ("bgap.pipeline", "save or restore a search's trial log (trials save|restore)"),
 }
 
 

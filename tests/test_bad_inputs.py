@@ -98,8 +98,6 @@ CASES = [
     ("parity", ["--episodes", "0"], r"--episodes: '0' must be a finite number > 0"),
     ("parity", ["--duration", "nan"], r"--duration: 'nan' must be a finite number > 0"),
     ("parity", ["--episodes", "many"], r"--episodes: 'many' is not a number"),
-    ("bench", ["sim", "--seconds", "-1"], r"--seconds: '-1' must be a finite number > 0"),
-    ("bench", ["fly"], r"invalid choice: 'fly'"),
     # --- simulate: every config range and mistake
     ("simulate", ["mix=1.5"], r"mix=1\.5 is invalid: must lie in \[0, 1\]"),
     ("simulate", ["mix=-0.1"], r"mix=-0\.1 is invalid"),
@@ -237,7 +235,6 @@ MODULES = {
     "sweep": "bgap.sweep",
     "cmetric": "bgap.cmetric.__main__",
     "parity": "bgap.parity",
-    "bench": "bgap.bench",
     "figures": "bgap.figures",
     "select": "bgap.select",
     "cmetric.boundary": "bgap.cmetric.boundary",

@@ -40,7 +40,6 @@ COMMANDS = (
     "bgap.figures",
     "bgap.select",
     "bgap.parity",
-    "bgap.bench",
     "bgap.pipeline",
     "bgap.zoo",
     "bgap.watch",
@@ -54,7 +53,6 @@ ARGPARSE_COMMANDS = (
     "bgap.figures",
     "bgap.select",
     "bgap.parity",
-    "bgap.bench",
     "bgap.pipeline",
 )
 HYDRA_COMMANDS = tuple(c for c in COMMANDS if c not in ARGPARSE_COMMANDS)

@@ -173,7 +173,7 @@ def test_lint_imports_holds_without_the_planned_runner(tmp_path):
 def test_every_stage_lists_exactly_the_code_its_command_runs(tmp_path):
     """dvc.yaml's code deps are the import closure of each stage's command, so a change to
     any module a stage runs reruns (or relocks) it, and no other change does."""
-    from bgap.experiments.pipeline import closure, code_deps
+    from tools.relock import closure, code_deps
 
     stale = {
         name: (sorted(set(needed) - set(listed)), sorted(set(listed) - set(needed)))
@@ -199,7 +199,7 @@ def test_every_stage_lists_exactly_the_code_its_command_runs(tmp_path):
 def test_relock_refuses_a_stage_whose_rehearsal_outputs_changed(tmp_path):
     """A change that alters what the parity stage writes is refused (the lock untouched);
     the unchanged code is relocked. About two minutes: two rehearsals per case."""
-    from bgap.experiments.pipeline import relock
+    from tools.relock import relock
 
     repo = tmp_path / "repo"
     subprocess.run(["git", "clone", "-q", str(ROOT), str(repo)], check=True)
@@ -229,7 +229,7 @@ def test_relock_refuses_a_stage_whose_rehearsal_outputs_changed(tmp_path):
 def test_relock_compares_a_runs_settings_by_what_the_base_had(tmp_path):
     """A run's config.yaml may gain a setting (new code, its default); a setting of the base
     that is gone or holds another value makes the outputs differ. Other files: bytes."""
-    from bgap.experiments.pipeline import _same
+    from tools.relock import _same
 
     def write(name: str, text: str) -> Path:
         (tmp_path / name).mkdir(exist_ok=True)
@@ -248,6 +248,47 @@ def test_relock_compares_a_runs_settings_by_what_the_base_had(tmp_path):
     assert not _same(tmp_path / "a.csv", tmp_path / "b.csv")
 
 
+def test_relock_reads_the_settings_an_evaluation_and_a_card_copy_as_config_yaml(tmp_path):
+    """models.csv's settings column and a zoo card's records copy a run's config.yaml as JSON:
+    they may gain a setting; any other change (a value, a row, a card field) differs."""
+    import csv
+    import json
+
+    import yaml
+
+    from tools.relock import _same
+
+    old = {"profile": {"checkpoint_every": 150, "name": "tiny"}, "agent": {"gamma": 0.9}}
+    new = {"profile": {**old["profile"], "checkpoint_rule": "return"}, "agent": {"gamma": 0.9}}
+    changed = {"profile": old["profile"], "agent": {"gamma": 0.8}}
+
+    def models(name: str, settings: dict, chosen: int = 4) -> Path:
+        path = tmp_path / name / "models.csv"
+        path.parent.mkdir()
+        with path.open("w", newline="") as f:
+            rows = csv.DictWriter(f, ["policy", "chosen_episodes", "settings"])
+            rows.writeheader()
+            rows.writerow({"policy": "main/s0", "chosen_episodes": chosen,
+                           "settings": json.dumps(settings, sort_keys=True)})  # fmt: skip
+        return path
+
+    base = models("base", old)
+    assert _same(base, models("added", new))
+    assert not _same(base, models("changed", changed))
+    assert not _same(base, models("chosen", new, chosen=5))
+
+    def card(name: str, settings: dict, **extra: object) -> Path:
+        path = tmp_path / "zoo" / name / "s0.yaml"
+        path.parent.mkdir(parents=True)
+        records = {"model": "best_model.zip", "settings": json.dumps(settings)}
+        path.write_text(yaml.safe_dump({"arm": "main", "records": records, **extra}))
+        return path
+
+    base = card("base", old)
+    assert _same(base, card("added", new))
+    assert not _same(base, card("changed", changed)) and not _same(base, card("field", new, x=1))
+
+
 def test_relock_compares_a_checkpoints_state_by_content(tmp_path):
     """A training checkpoint's state.pkl may gain fields (new running statistics at their
     initial value); a changed array, counter or random stream makes it differ."""
@@ -255,7 +296,7 @@ def test_relock_compares_a_checkpoints_state_by_content(tmp_path):
 
     import numpy as np
 
-    from bgap.experiments.pipeline import _same
+    from tools.relock import _same
 
     def write(name: str, state: dict) -> Path:
         (tmp_path / name).mkdir()
@@ -295,7 +336,7 @@ def test_sb3_models_and_replay_buffers_compare_without_wall_clocks(tmp_path):
     from stable_baselines3 import DQN
     from stable_baselines3.common.monitor import Monitor
 
-    from bgap.experiments.pipeline import _same
+    from tools.relock import _same
 
     def trained(name: str) -> DQN:
         env = Monitor(gym.make("CartPole-v1"))
@@ -331,7 +372,7 @@ def test_the_replay_cells_in_params_name_every_replayed_table():
     must name each table replay_data writes, at its density, under the pipeline's root."""
     import yaml
 
-    from bgap.experiments.pipeline import replay_cells
+    from tools.relock import replay_cells
 
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     assert params["replay"]["cells"] == replay_cells(params)
@@ -343,7 +384,7 @@ def test_a_rehearsal_trains_every_arm_at_the_tiny_profile():
     one seed, so that a relock never trains at a real budget."""
     import yaml
 
-    from bgap.experiments.pipeline import rehearsal
+    from tools.relock import rehearsal
 
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     assert params["learner_arms"]  # the arms this checks
@@ -369,7 +410,7 @@ def test_a_rehearsal_runs_each_stage_after_the_stages_it_reads(tmp_path):
     no stage that the reader does not read from."""
     import yaml
 
-    from bgap.experiments.pipeline import _upstream_first
+    from tools.relock import _upstream_first
 
     stages = {
         "reader": {"cmd": "cat data/table > read", "deps": ["data"], "outs": ["read"]},
@@ -394,7 +435,7 @@ def test_tensorboard_scalars_compare_without_the_clocks_own(tmp_path):
     the training's, not the machine's."""
     from torch.utils.tensorboard import SummaryWriter
 
-    from bgap.experiments.pipeline import _scalars
+    from tools.relock import _scalars
 
     for name, fps in (("a", 100.0), ("b", 140.0)):
         with SummaryWriter(tmp_path / name) as writer:

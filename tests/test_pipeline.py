@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from bgap.experiments.pipeline import replay_cells
 from tests.pipeline_repo import run
+from tools.relock import replay_cells
 
 STAGES = {"calibrate", "recipe", "train", "replay_data", "evaluate", "evaluate_baselines",
           "figures"}  # fmt: skip

@@ -73,7 +73,7 @@ def test_trainings_side_by_side_run_no_more_kernel_threads_than_cores():
     """bgap.train's pool of two processes (workers=2): one torch thread each, and numba's
     kernels together on at most the cores there are. With numba's default in each (one
     thread per core, as before 2026-12-04) two processes on two cores ran four threads and
-    every kernel waited at its barrier: 2.8x slower (python -m bgap.bench side)."""
+    every kernel waited at its barrier: 2.8x slower (python tools/bench.py side)."""
     from bgap.runner.pools import process_pool
 
     cores = len(os.sched_getaffinity(0))

@@ -1,4 +1,4 @@
-"""The vector backend's step cut into its phases, for ``python -m bgap.bench sim``'s split.
+"""The vector backend's step cut into its phases, for ``python tools/bench.py sim``'s split.
 
 :func:`bgap.sim.core.step_batch` runs a whole policy step per environment inside one
 parallel loop, so no clock can see inside it. Here each phase of a frame is its own batched

@@ -1,24 +1,29 @@
 """Benchmarks, run by hand (never by the test suite): they print figures.
 
-    python -m bgap.bench env        # policy steps/s of our environment vs highway-v0
-    python -m bgap.bench sim        # vectorised backend vs highway-env vs EnvPool (optional:
+    python tools/bench.py env        # policy steps/s of our environment vs highway-v0
+    python tools/bench.py sim        # vectorised backend vs highway-env vs EnvPool (optional:
                                     # pip install -e ".[bench]"), both cores
-    python -m bgap.bench learn      # DQN gradient updates/s: SB3 (one training) vs the batched
+    python tools/bench.py learn      # DQN gradient updates/s: SB3 (one training) vs the batched
                                     # learner with K = 1, 4, 10, 20 members, dense traffic
-    python -m bgap.bench evaluate   # evaluation's rollouts (100 seeded episodes a batch), envs
+    python tools/bench.py evaluate   # evaluation's rollouts (100 seeded episodes a batch), envs
                                     # whose episode ended skipped vs simulated on
-    python -m bgap.bench cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
-                                    # OMP_NUM_THREADS=1 taskset -c 0 python -m bgap.bench cmetric)
-    python -m bgap.bench cluster    # the same 4 trainings (a minute each) on a local Ray
+    python tools/bench.py cmetric    # CMetric vehicle-frames/s vs a networkx baseline (1 core:
+                                    # OMP_NUM_THREADS=1 taskset -c 0 python tools/bench.py cmetric)
+    python tools/bench.py cluster    # the same 4 trainings (a minute each) on a local Ray
                                     # cluster of 1 node, then 2 nodes (one CPU each; the
                                     # cluster extra)
-    python -m bgap.bench side       # 2 SB3 trainings side by side (bgap.train workers=2):
+    python tools/bench.py side       # 2 SB3 trainings side by side (bgap.train workers=2):
                                     # numba's default threads in each vs bgap.train's share
 
 Figures are reported beside a baseline measured in the same run, since machines are noisy.
 """
 
 from __future__ import annotations
+
+if __name__ == "__main__":  # the kernels every bgap command computes with, before torch loads
+    from bgap.runner.numerics import pin
+
+    pin()
 
 import argparse
 import os
@@ -562,7 +567,7 @@ def bench_side(seconds: float, trainings: int = 2) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(
-        prog="bgap.bench",
+        prog="tools/bench.py",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
