@@ -30,6 +30,10 @@ COMMANDS = {
 }
 
 
+TOOLS = {"bench": "python tools/bench.py"}
+"""Commands that became developer tools in the checkout (``tools/``), outside the library."""
+
+
 def version() -> str:
     """The installed distribution's version (its metadata), else the package's own
     ``bgap.__version__`` (a source tree that was never installed)."""
@@ -66,6 +70,8 @@ def main(argv: list[str] | None = None) -> None:
     if name not in COMMANDS:
         close = get_close_matches(args[0], list(COMMANDS), n=1)
         hint = f"did you mean {close[0]!r}? " if close else ""
+        if name in TOOLS:
+            hint = f"it is a developer tool now: {TOOLS[name]} in a checkout; "
         print(f"bgap: unknown command {args[0]!r}; {hint}`bgap` lists them", file=sys.stderr)
         raise SystemExit(2)
     module = COMMANDS[name][0]

@@ -38,3 +38,16 @@ def test_the_pipelines_code_deps_are_current_and_the_library_ships_no_tool():
     assert "0 stage(s) whose code deps differ" in done.stdout
     for module in ("bgap.bench", "bgap.experiments.bench"):
         assert importlib.util.find_spec(module) is None
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["-m", "bgap", "bench", "sim"], "python tools/bench.py in a checkout"),
+        (["-m", "bgap.pipeline", "relock", "train"], "python tools/relock.py deps|relock"),
+    ],
+)
+def test_the_commands_that_became_tools_say_where_they_went(args, says):
+    done = _tool(*args)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert says in done.stderr

@@ -8,10 +8,11 @@ developer tools (its code deps, relocking moved stages) are ``tools/relock.py``.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Any
 
-from bgap.common.cli import OneLineParser, run
+from bgap.common.cli import OneLineParser, fail, run
 from bgap.common.errors import ConfigError
 
 
@@ -34,6 +35,9 @@ def _trials(args: Any) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     parser = OneLineParser(prog="bgap.pipeline", description=__doc__.split("\n\n")[0])
+    if (argv if argv is not None else sys.argv[1:])[:1] in (["deps"], ["relock"]):
+        fail("bgap.pipeline", "deps and relock are a developer tool now: python "
+             "tools/relock.py deps|relock in a checkout")  # fmt: skip
     sub = parser.add_subparsers(dest="command", required=True)
     trials = sub.add_parser(
         "trials", help="keep a search's finished trials in git, or put them back in a study"
