@@ -275,6 +275,20 @@ def test_a_traffic_the_memory_cannot_hold_is_one_line(backend, tmp_path, monkeyp
         gym.make("bgap/BehaviorHighway-v0", config={"vehicles_count": 10**8})
 
 
+@pytest.mark.parametrize("learner", ["sb3", "batched"])
+def test_a_replay_buffer_the_memory_cannot_hold_is_one_line(learner, tmp_path, monkeypatch, capsys):
+    """Twenty billion transitions: refused before numpy's lazy zeros let the training start
+    (SB3's own check only warns); the estimate is the buffer's arrays, counted by hand."""
+    monkeypatch.chdir(tmp_path)
+    size, features = 20_000_000_000, 5 * 5  # the tiny profile observes 5 vehicles x 5
+    slot = 2 * 4 * features + 8 + 3 * 4 + 8 + 2 * 8  # obs, next obs, action, flags, priority
+    args = ["profile=tiny", f"agent.buffer_size={size}", f"learner={learner}", "run_dir=run"]
+    status, _, err = command("bgap.train", args, monkeypatch, capsys)
+    last = err.strip().splitlines()[-1]
+    assert status == 2 and "Traceback" not in err, err
+    assert f"agent.buffer_size={size} needs about {size * slot / 2**30:,.1f} GiB" in last
+
+
 def test_a_refused_calibration_target_leaves_no_folder_to_refuse_the_fix(
     tmp_path, monkeypatch, capsys
 ):

@@ -47,7 +47,7 @@ import torch.nn.functional as F
 from torch.optim.adam import adam
 
 from bgap.agents.config import AgentConfig
-from bgap.agents.per import SumTrees
+from bgap.agents.per import SumTrees, check_replay_memory
 from bgap.common.errors import check
 
 
@@ -166,6 +166,7 @@ class StackedReplay:
     ) -> None:  # fmt: skip
         self.k, self.n_envs = k, n_envs
         self.size = max(buffer_size // n_envs, 1)  # SB3's ReplayBuffer
+        check_replay_memory(buffer_size, obs_dim, k)
         shape = (k, self.size, n_envs)
         self.obs = np.zeros((*shape, obs_dim), dtype=np.float32)
         self.next_obs = np.zeros((*shape, obs_dim), dtype=np.float32)

@@ -22,6 +22,24 @@ import numpy as np
 import torch as th
 from stable_baselines3.common.buffers import ReplayBuffer
 
+from bgap.common.errors import check_memory
+
+SLOT_BYTES = 8 + 3 * 4 + 8 + 2 * 8
+"""A replay slot's bytes besides its two observations: the action (int64), the reward, done
+and timeout flags (float32), the priority (float64) and its sum- and min-tree entries."""
+
+
+def check_replay_memory(buffer_size: int, obs_dim: int, members: int = 1) -> None:
+    """Refuse a replay buffer of ``buffer_size`` transitions of ``obs_dim`` float32 features
+    (``members`` of them) that this machine cannot hold, before it is allocated. SB3's own
+    check only warns, and numpy's lazily zeroed arrays let the training start, to be killed
+    without a message once the buffer fills."""
+    nbytes = members * buffer_size * (2 * 4 * obs_dim + SLOT_BYTES)
+    fix = "a smaller agent.buffer_size" + (
+        f", or fewer members than {members}" if members > 1 else ""
+    )
+    check_memory(nbytes, "agent.buffer_size", buffer_size, fix)
+
 
 class PrioritizedSamples(NamedTuple):
     observations: th.Tensor

@@ -3,6 +3,7 @@ identity (what changes what is learnt) and run folder, and the SB3 model it is s
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -17,7 +18,7 @@ from bgap.agents.monitor import (
     recover_checkpoint,
 )
 from bgap.agents.observation import MODEL_ATTRIBUTE
-from bgap.agents.per import PrioritizedReplayBuffer
+from bgap.agents.per import PrioritizedReplayBuffer, check_replay_memory
 from bgap.common.errors import ConfigError
 from bgap.common.runs import (
     ADDED_LATER,
@@ -124,6 +125,7 @@ def _build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
             vf_coef=a.vf_coef, policy_kwargs=network, **common,
         )  # fmt: skip
     per = a.replay == "per"
+    check_replay_memory(a.buffer_size, math.prod(env.observation_space.shape))
     off_policy = dict(
         buffer_size=a.buffer_size,
         learning_starts=a.learning_starts,

@@ -47,9 +47,11 @@ def run_jobs(
                 done(k, results[k])
         return results
     with process_pool(min(workers, len(calls)), numba_threads) as pool:
-        futures = {pool.submit(in_worker, fn, *call): k for k, call in enumerate(calls)}
+        futures: dict[Any, int] = {}
         finished = 0
-        try:
+        try:  # a Ctrl-C while the workers start is heard as the last one starts
+            for k, call in enumerate(calls):
+                futures[pool.submit(in_worker, fn, *call)] = k
             for future in as_completed(futures):
                 k = futures[future]
                 results[k] = future.result()

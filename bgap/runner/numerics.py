@@ -1,11 +1,15 @@
-"""The CPU kernels a command computes with: pinned, so that the same seed gives the same
-numbers on any x86 machine, unless the command line says ``reproducible=false``.
+"""The CPU kernels a command computes with: pinned, so that torch does not pick them by the
+instruction set it finds, unless the command line says ``reproducible=false``; and a
+command's start, where Ctrl-C ends it in one line.
 
 torch picks its CPU kernels by the instruction set it finds (AVX-512 or AVX2 vectorised
 loops, MKL's per-ISA GEMM paths), and their float sums differ in the last bits, which a
 training amplifies: the same 6,000-step training ends with other weights on an AVX-512
-machine than on the one the study was trained on. Both variables are read when torch
-loads, so :func:`pin` runs in a command's entry module, before anything imports torch.
+machine than on the one the study was trained on. Pinned, the same seed gives the same
+numbers on one machine; trainings still differ between some machines for a cause not yet
+found (docs/notes), so a trained number is checked on the machine that trained it. Both
+variables are read when torch loads, so :func:`pin` runs in a command's entry module,
+before anything imports torch.
 Importing bgap as a library pins nothing: numerics are the caller's choice.
 Measured cost (docs/benchmarks.md): about 10% of an SB3 training, 4.5x for the batched
 learner's stacked matrix products.
@@ -14,6 +18,7 @@ learner's stacked matrix products.
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from collections.abc import Callable
 from importlib import import_module
@@ -63,6 +68,23 @@ def command(module: str) -> Callable[[], None]:
 
     def main() -> None:
         pin()
-        import_module(module).main()
+        entry = _load(module)
+        entry()
 
     return main
+
+
+def _load(module: str) -> Callable[[], None]:
+    """``module``'s ``main``, imported with Ctrl-C and SIGTERM ending the command in one line
+    (its imports take seconds, before the command's own handling, :func:`bgap.common.cli.run`,
+    is in place)."""
+    prog = "bgap." + module.rsplit(".", 1)[-1]
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        return import_module(module).main
+    except KeyboardInterrupt:
+        message = "interrupted while starting: nothing was written; run the same command again"
+        print(f"{prog}: {message}", file=sys.stderr)
+        raise SystemExit(130) from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
