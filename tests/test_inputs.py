@@ -197,6 +197,20 @@ def test_the_lock_is_released_and_leaves_no_file_nor_an_empty_folder_it_made(tmp
     with exclusive(tmp_path / "kept"):  # written: kept
         (tmp_path / "kept" / "config.yaml").write_text("seed: 0\n")
     assert (tmp_path / "kept" / "config.yaml").exists()
+    # refused once its metadata was written (a memory estimate made when the traffic is
+    # built): the folder and the parents it made go; a folder it found stays
+    from bgap.common.runs import save_run_metadata
+
+    with pytest.raises(ConfigError), exclusive(tmp_path / "a" / "b" / "run"):
+        save_run_metadata(tmp_path / "a" / "b" / "run", {"seed": 0})
+        raise ConfigError("refused after the metadata")
+    assert not (tmp_path / "a").exists()
+    with pytest.raises(ConfigError), exclusive(tmp_path / "out" / "run"):
+        save_run_metadata(tmp_path / "out" / "run", {"seed": 0})
+        (tmp_path / "out" / "run" / "episodes.csv").write_text("a result\n")
+        raise ConfigError("refused after a result")
+    kept = sorted(p.name for p in (tmp_path / "out" / "run").iterdir())
+    assert kept == ["command.txt", "config.yaml", "episodes.csv"]
 
 
 def test_minus_zero_is_zero():

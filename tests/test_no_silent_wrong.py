@@ -271,6 +271,7 @@ def test_a_traffic_the_memory_cannot_hold_is_one_line(backend, tmp_path, monkeyp
     last = err.strip().splitlines()[-1]
     assert status == 2 and "vehicles_count=100000000 needs about" in last, err
     assert "GiB available: fewer vehicles" in last and "Traceback" not in err
+    assert not (tmp_path / "o").exists()  # found once the traffic is built: taken back
     with pytest.raises(ConfigError, match="needs about 298"):  # 3.2 kB a vehicle
         gym.make("bgap/BehaviorHighway-v0", config={"vehicles_count": 10**8})
 
@@ -287,6 +288,7 @@ def test_a_replay_buffer_the_memory_cannot_hold_is_one_line(learner, tmp_path, m
     last = err.strip().splitlines()[-1]
     assert status == 2 and "Traceback" not in err, err
     assert f"agent.buffer_size={size} needs about {size * slot / 2**30:,.1f} GiB" in last
+    assert not any(tmp_path.iterdir())  # no run folder left to hold the corrected command
 
 
 def test_a_refused_calibration_target_leaves_no_folder_to_refuse_the_fix(

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from bgap.common.errors import ConfigError
-from bgap.common.runs import LOCK
+from bgap.common.runs import LOCK, METADATA, only_metadata
 
 _HELD: dict[Path, int] = {}
 
@@ -27,8 +27,10 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
     """Hold an advisory lock on ``folder`` while this process writes it. Another process
     holding it: refused in one line naming that process (``wait``: wait for it instead).
     Re-entrant within a process (``bgap.run`` locks the run folders its trainings lock). A
-    folder this call created and left empty (the command was refused or interrupted before
-    it wrote anything) is removed again."""
+    folder this call created and left empty, or holding only the metadata of a command
+    refused before it wrote anything (a setting found impossible once the traffic is built),
+    is removed again, with the parents it created: the corrected command starts from
+    nothing."""
     folder = Path(folder).resolve()
     if folder in _HELD:
         _HELD[folder] += 1
@@ -37,16 +39,34 @@ def exclusive(folder: str | Path, wait: bool = False) -> Iterator[None]:
         finally:
             _HELD[folder] -= 1
         return
-    created = not folder.exists()
+    made = [p for p in (folder, *folder.parents) if not p.exists()]  # innermost first
     folder.mkdir(parents=True, exist_ok=True)
+    ended = True
     try:
         with _holding(folder / LOCK, folder, wait):
             _HELD[folder] = 1
             yield
+    except Exception:  # refused; an interruption keeps its metadata, and says so
+        ended = False
+        raise
     finally:
         _HELD.pop(folder, None)
-        if created and not any(folder.iterdir()):  # refused before writing: leave no trace
-            folder.rmdir()
+        _take_back(made, metadata_too=not ended)
+
+
+def _take_back(made: list[Path], metadata_too: bool) -> None:
+    """Remove the folders ``made`` that hold nothing (with ``metadata_too``: nothing but a
+    command's metadata), innermost first; what a command wrote besides is never touched."""
+    if not made:
+        return
+    if metadata_too and made[0].is_dir() and any(made[0].iterdir()) and only_metadata(made[0]):
+        for name in METADATA:
+            (made[0] / name).unlink(missing_ok=True)
+    for folder in made:
+        try:
+            folder.rmdir()  # only if empty
+        except OSError:
+            return
 
 
 @contextmanager
