@@ -78,3 +78,18 @@ def test_the_pipeline_reaches_a_cluster_through_the_environment(monkeypatch):
     given = validate(compose("run", ["profile=tiny", "cluster.address=local"]))
     assert given.cluster.address == "local"
     assert results_dir(here) == results_dir(there)
+
+
+@pytest.mark.parametrize(
+    ("val_seed", "refused"), [(90_000, False), (90_001, True), (109_999, True), (110_000, False)]
+)
+def test_seed_blocks_at_the_gap(val_seed, refused):
+    """Validation and test seed blocks (eval_seed 100000) must start 10,000 apart, either way
+    round: one seed closer is refused, naming both."""
+    cfg = compose("train", [f"val_seed={val_seed}"])
+    if not refused:
+        validate(cfg)
+        return
+    says = f"val_seed={val_seed} is invalid: must be at least 10000 away from eval_seed=100000"
+    with pytest.raises(ConfigError, match=says):
+        validate(cfg)

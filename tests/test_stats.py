@@ -185,3 +185,17 @@ def test_a_sample_without_spread_still_gets_an_interval_of_positive_width():
     assert lo < 25.0 < hi and hi - lo == pytest.approx(2 * np.spacing(np.float32(25.0)))
     x = np.array([1.0, 2.0, 4.0])
     assert spread_interval(x) == t_interval(x)
+
+
+def test_collisions_per_100km_by_hand():
+    """20 m/s for 50 steps at 1 Hz is 1,000 m, 30 m/s for 10
+    steps at 1 Hz 300 m; one crash over 1.3 km is 76.92 per 100 km."""
+    import pandas as pd
+
+    from bgap.common.scores import collisions_per_100km, episode_distance
+
+    episodes = pd.DataFrame({"avg_speed": [20.0, 30.0], "steps": [50, 10], "crashed": [0, 1]})
+    distance = episode_distance(episodes, 1)
+    assert distance.tolist() == [1000.0, 300.0]
+    assert episode_distance(episodes, 2).tolist() == [500.0, 150.0]  # steps of half a second
+    assert collisions_per_100km(episodes.crashed, distance) == pytest.approx(100_000 / 1300)

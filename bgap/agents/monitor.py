@@ -31,7 +31,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from bgap.agents.policies import rollout
 from bgap.common.plotting import pyplot
 from bgap.common.runs import BEST_MODEL, CHECKPOINT_STATE, write_atomic
-from bgap.common.scores import PER_KM, constrained_score
+from bgap.common.scores import collisions_per_100km, constrained_score, episode_distance
 from bgap.runner.interrupt import CtrlC
 from bgap.sim.rollout import EpisodeStats
 
@@ -263,8 +263,8 @@ def _figures(episodes: pd.DataFrame, policy_frequency: int | None = None) -> dic
         "return": float(episodes["return"].mean()),
     }
     if policy_frequency is not None:
-        distance = float((episodes.avg_speed * episodes.steps).sum()) / policy_frequency
-        figures["per_100km"] = float(episodes.crashed.sum()) / distance * PER_KM
+        distance = episode_distance(episodes, policy_frequency)
+        figures["per_100km"] = collisions_per_100km(episodes.crashed, distance)
     return figures
 
 

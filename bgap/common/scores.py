@@ -3,15 +3,29 @@
 One definition for every choice made on validation episodes: a constrained sweep's trials,
 the tuned rule-based ego's parameters and a training's checkpoint under the ``per_km`` rule.
 It sits on the ground floor because the training monitor (agents) and the analysis both
-read it.
+read it, with the one definition of an episode's distance and of collisions per 100 km.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 from bgap.common.vocab import SPEED_FLOOR
 
 PER_KM = 100_000.0
 """Metres in the unit of exposure-normalised safety: collisions per 100 km."""
+
+
+def episode_distance(episodes: Any, policy_frequency: float) -> Any:
+    """Each episode's metres driven, from a rollout's table (``avg_speed``, ``steps``): its
+    mean speed (one sample per policy step) x its duration (steps / policy frequency)."""
+    return episodes.avg_speed * episodes.steps / policy_frequency
+
+
+def collisions_per_100km(crashed: Any, distance: Any) -> float:
+    """Collisions per 100 km over episodes (``distance`` in m): an episode ends at its first
+    crash, so the crashes count events over the distance driven."""
+    return float(crashed.sum() / distance.sum() * PER_KM)
 
 
 def constrained_score(

@@ -84,6 +84,9 @@ class BehaviorHighwayEnv(HighwayEnv):
                 traffic["table"], self.config["simulation_frequency"], traffic["min_duration"]
             )
             self.config["lanes_count"] = self.replay.lanes
+        else:  # checked once: the count holds for every episode
+            n = int(self.config["vehicles_count"])
+            check_memory(n * VEHICLE_BYTES, "vehicles_count", n, "fewer vehicles")
 
     def define_spaces(self) -> None:
         super().define_spaces()
@@ -122,7 +125,6 @@ class BehaviorHighwayEnv(HighwayEnv):
             self._create_replay()
             return
         n = int(self.config["vehicles_count"])
-        check_memory(n * VEHICLE_BYTES, "vehicles_count", n, "fewer vehicles")
         self.mix = episode_mix(self.config, self._mix_rng)
         n_aggressive = count_aggressive(self.mix, n)
         labels = np.array([AGGRESSIVE] * n_aggressive + [CONSERVATIVE] * (n - n_aggressive))

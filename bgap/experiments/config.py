@@ -11,7 +11,7 @@ from omegaconf import DictConfig
 from bgap.agents.config import AgentConfig
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN
 from bgap.common import config as plumbing
-from bgap.common.errors import check
+from bgap.common.errors import check, check_apart
 from bgap.common.vocab import (
     BASELINES,
     CHECKPOINT_RULES,
@@ -253,18 +253,12 @@ class ExperimentConfig(BaseConfig):
             self.seeds,
             "must be distinct non-negative training seeds, e.g. seeds=[0,1,2]",
         )
-        check(
-            self.val_seed + 10_000 <= self.eval_seed or self.eval_seed + 10_000 <= self.val_seed,
-            "val_seed",
-            self.val_seed,
-            f"must be at least 10000 away from eval_seed={self.eval_seed} (validation and test "
-            "episodes never share seeds)",
-        )
+        apart = f"eval_seed={self.eval_seed} (validation and test episodes never share seeds)"
+        check_apart("val_seed", self.val_seed, self.eval_seed, apart)
         if self.profile.checkpoint_rule == "per_km":
+            apart = f"{CHECKPOINT_SEED} (the per_km checkpoint rule's validation episodes)"
             for key, seed in (("val_seed", self.val_seed), ("eval_seed", self.eval_seed)):
-                check(abs(seed - CHECKPOINT_SEED) >= 10_000, key, seed,
-                      f"must be at least 10000 away from {CHECKPOINT_SEED}, the per_km "
-                      "checkpoint rule's validation episodes")  # fmt: skip
+                check_apart(key, seed, CHECKPOINT_SEED, apart)
         for density, table in self.grid.replay_tables():  # a table no episode can come from
             env = env_preset(density) if density else self.env  # fails here, in one line
             load_replay(table, env.simulation_frequency, self.traffic.min_duration)

@@ -45,6 +45,7 @@ from bgap.common.runs import (
     save_run_metadata,
     write_atomic,
 )
+from bgap.common.scores import episode_distance
 from bgap.common.tables import read_table
 from bgap.common.vocab import BASELINES, CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
@@ -124,8 +125,7 @@ def _evaluate_chunk(
     if cell.table:
         key["replay"] = cell.replay
     episodes = rollout(env_cfg, policy, seeds, backend).episodes
-    # the speed samples avg_speed averages, one per policy step, times the step's duration
-    episodes["distance"] = episodes.avg_speed * episodes.steps / env_cfg["policy_frequency"]
+    episodes["distance"] = episode_distance(episodes, env_cfg["policy_frequency"])
     return [{**key, **row} for row in episodes.to_dict(orient="records")]
 
 

@@ -41,7 +41,7 @@ from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, as_before, digest, write_atomic
-from bgap.common.scores import constrained_score
+from bgap.common.scores import constrained_score, episode_distance
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments import trial_log
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
@@ -160,7 +160,7 @@ def validation_figures(policy, cfg: ExperimentConfig, episodes: int) -> dict[str
     ``avg_speed`` of ``policy`` on :func:`validation_episodes`, with the counts behind them
     (``crashes``, ``episodes``, ``km``)."""
     rows = validation_episodes(policy, cfg, episodes)
-    distance = rows.avg_speed * rows.steps / cfg.env.policy_frequency
+    distance = episode_distance(rows, cfg.env.policy_frequency)
     return {
         "collision_pct": 100.0 * float(rows.crashed.mean()),
         "per_100km": per_100km(rows.crashed.to_numpy(), distance.to_numpy())[0],

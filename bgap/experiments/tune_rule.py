@@ -34,11 +34,11 @@ from omegaconf import DictConfig
 
 from bgap.agents.rule_based import DEFAULT, SITUATIONS, RuleParams, TunedRule, rule_based
 from bgap.common.config import app, load
-from bgap.common.errors import check
+from bgap.common.errors import check, check_apart
 from bgap.common.plotting import pyplot
 from bgap.common.presets import check_owner, preset_path, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
-from bgap.common.scores import PER_KM, constrained_score
+from bgap.common.scores import collisions_per_100km, constrained_score, episode_distance
 from bgap.common.vocab import IDLE, SPEED_FLOOR
 from bgap.experiments.config import SCHEMAS as EXPERIMENT_SCHEMAS
 from bgap.experiments.config import ExperimentConfig
@@ -80,9 +80,12 @@ class TuneRuleConfig(ExperimentConfig):
         check(self.trials >= 1, "trials", self.trials, "must be >= 1")
         check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
         for name, seed in (("val_seed", self.val_seed), ("eval_seed", self.eval_seed)):
-            check(abs(self.tune_seed - seed) >= 10_000, "tune_seed", self.tune_seed,
-                  f"must be at least 10000 away from {name}={seed} (the tuning's episodes "
-                  "are its own)")  # fmt: skip
+            check_apart(
+                "tune_seed",
+                self.tune_seed,
+                seed,
+                f"{name}={seed} (the tuning's episodes are its own)",
+            )
 
 
 SCHEMAS = (*EXPERIMENT_SCHEMAS, (None, "base_tune_rule", TuneRuleConfig))
@@ -96,11 +99,11 @@ def play(cfg: TuneRuleConfig, driver: Callable[[dict], Any]) -> dict[str, float]
     for cell in grid_cells(cfg):
         env = cell_env_config(cfg, cell)
         episodes = rollout(env, driver(env), seeds, cfg.backend).episodes
-        episodes["distance"] = episodes.avg_speed * episodes.steps / env["policy_frequency"]
+        episodes["distance"] = episode_distance(episodes, env["policy_frequency"])
         frames.append(episodes)
     e = pd.concat(frames, ignore_index=True)
     return {
-        "per_100km": float(e.crashed.sum() / e.distance.sum() * PER_KM),
+        "per_100km": collisions_per_100km(e.crashed, e.distance),
         "collision_pct": float(100.0 * e.crashed.mean()),
         "avg_speed": float(e.avg_speed.mean()),
         "lane_changes": float(e.lane_changes.mean()),

@@ -30,6 +30,7 @@ from bgap.agents.policies import as_policy, check_rows, model_path
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, check
 from bgap.common.runs import CONFIG, digest, save_run_metadata, write_atomic
+from bgap.common.scores import episode_distance
 from bgap.common.vocab import BASELINES
 from bgap.runner.locks import exclusive
 from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
@@ -154,7 +155,7 @@ def watch(cfg: WatchConfig, out: Path) -> pd.DataFrame:
     fps = float(config["simulation_frequency"])  # every simulation frame: real time
     suffix = writer_format(cfg.format)
     episodes = played.episodes.copy()
-    episodes["distance"] = episodes.avg_speed * episodes.steps / config["policy_frequency"]
+    episodes["distance"] = episode_distance(episodes, config["policy_frequency"])
     for k in range(cfg.episodes):
         table = played.trajectories[played.trajectories.episode == k]
         path = out / f"episode{k}.{suffix}"
