@@ -304,3 +304,60 @@ def test_a_refused_calibration_target_leaves_no_folder_to_refuse_the_fix(
         status, _, err = command("bgap.calibrate", args, monkeypatch, capsys)
         assert status == 2 and says in err and "Traceback" not in err, err
         assert not (tmp_path / "out").exists()
+
+
+SAVED = {  # command, its config, arguments, the folder its config.yaml is in
+    "calibrate": ("bgap.calibrate", "calibrate", ["calibrate.trials=1", "calibrate.rounds=1",
+                  "calibrate.episodes=1", "calibrate.duration=5", "root=o"], "o/calibration"),
+    "tune_rule": ("bgap.tune_rule", "tune_rule", ["situation=dense", "env=dense", "grid=paper",
+                  "grid.densities=[dense]", "grid.mixes=[0.5]", "grid.radii=[180.0]",
+                  "env.duration=4", "trials=1", "episodes=1", "out=o", "preset=p.yaml"], "o"),
+    "cmetric": ("bgap.cmetric.__main__", "cmetric_app", ["input=t.csv", "out=o/", "fps=5"], "o"),
+    "run": ("bgap.run", "run", ["profile=tiny", "mix=0.7", "root=o"], "o/results/*"),
+    "train": ("bgap.train", "train", ["profile=tiny", "policy=default", "mix=0.8",
+              "run_dir=o"], "o"),
+}  # fmt: skip
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SAVED))
+def test_the_saved_config_is_the_config_the_command_used(name, tmp_path, monkeypatch, capsys):
+    """The commands beyond simulate, evaluate, watch and zoo (tests/test_zoo.py): the saved
+    ``config.yaml`` is the config composed from the command line, except where the command
+    documents that it trains under another (policy=default: stock traffic at a fixed mix)."""
+    import yaml
+    from omegaconf import OmegaConf
+
+    from bgap.calibration.config import SCHEMAS as CALIBRATE
+    from bgap.cmetric.config import SCHEMAS as CMETRIC
+    from bgap.common import config as plumbing
+    from bgap.experiments.config import SCHEMAS as EXPERIMENTS
+    from bgap.experiments.tune_rule import SCHEMAS as TUNE_RULE
+
+    monkeypatch.chdir(tmp_path)
+    module, config, args, folder = SAVED[name]
+    if name == "cmetric":  # a table of 4 vehicles over 5 s, at 5 frames a second
+        frames = np.tile(np.arange(25), 4)
+        vehicle = np.repeat(np.arange(4), 25)
+        x = vehicle * 30.0 + 25.0 * frames / 5
+        table = {
+            "episode": 0,
+            "vehicle_id": vehicle,
+            "frame": frames,
+            "x": x,
+            "y": vehicle % 2 * 4.0,
+        }
+        pd.DataFrame(table).to_csv("t.csv", index=False)
+    status, _, err = command(module, args, monkeypatch, capsys)
+    assert status == 0, err
+    schemas = {"calibrate": CALIBRATE, "tune_rule": TUNE_RULE, "cmetric_app": CMETRIC,
+               "train": EXPERIMENTS, "run": EXPERIMENTS}[config]  # fmt: skip
+    expected = OmegaConf.to_container(plumbing.compose(config, args, schemas), resolve=True)
+    (saved,) = tmp_path.glob(f"{folder}/config.yaml")  # the results of bgap.run: one folder
+    saved = yaml.safe_load(saved.read_text())
+    if name == "train":  # policy=default trains in stock traffic, at the mix it samples
+        assert saved["behavior"]["name"] == "stock" and expected["behavior"]["name"] != "stock"
+        assert saved.pop("mix_sampling") == "fixed"
+        expected.pop("mix_sampling")
+        saved.pop("behavior"), expected.pop("behavior")
+    assert saved == expected
