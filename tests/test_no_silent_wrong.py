@@ -69,7 +69,8 @@ def test_replay_with_string_ids_plays_the_episodes_of_the_same_table_with_intege
     from tests.configs import compose
 
     played = []
-    for name, t in (("int", table), ("str", _as_strings(table))):
+    spread = table.assign(vehicle_id=table.vehicle_id * 7)  # "v14" sorts before "v7" as text
+    for name, t in (("int", spread), ("str", _as_strings(spread))):
         t.to_parquet(tmp_path / f"{name}.parquet")
         cfg = validate(
             compose(

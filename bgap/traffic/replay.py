@@ -24,6 +24,7 @@ the candidates, then its start) so every policy meets the same windows.
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -154,12 +155,12 @@ class Replay:
         self.lane_ranks, y = _lanes(df)
         self.lanes = len(self.lane_ranks)
         df = df.assign(y=y, x=df.x - min(0.0, float(df.x.min())))
-        # scenes keep their integer ids; scenes named by strings (a SUMO table's
-        # "dense_mix50") are numbered by their sorted order, the number traffic.scene takes
-        self.scenes = [
-            self._scene(int(k) if isinstance(k, (int, np.integer)) else i, g)
-            for i, (k, g) in enumerate(df.groupby("episode", sort=True))
-        ]
+        # scenes keep their integer ids; where scenes are named by strings (a SUMO table's
+        # "dense_mix50"), every scene is numbered by its sorted order, the number
+        # traffic.scene takes
+        groups = _in_order(df.groupby("episode", sort=True))
+        numbered = all(isinstance(k, (int, np.integer)) for k, _ in groups)
+        self.scenes = [self._scene(int(k) if numbered else i, g) for i, (k, g) in enumerate(groups)]
         self.candidates = [
             (s, v)
             for s, scene in enumerate(self.scenes)
@@ -220,7 +221,7 @@ class Replay:
         t0 = float(g.time.min())
         total = int(np.floor((float(g.time.max()) - t0) / self.dt + 1e-9)) + 1
         grid = t0 + np.arange(total) * self.dt
-        tracks = list(g.groupby("vehicle_id", sort=True))
+        tracks = _in_order(g.groupby("vehicle_id", sort=True))
         state = np.full((total, len(tracks), 4), np.nan)
         labels: list[Optional[str]] = []
         for v, (_, track) in enumerate(tracks):
@@ -269,6 +270,21 @@ class Replay:
                     f"{(last - self.min_frames) * self.dt:g} s"
                 )
         return Window(self.scenes[s], v, begin, min(last - begin, max_frames), s)
+
+
+def _in_order(groups) -> list[tuple[object, pd.DataFrame]]:
+    """A groupby's groups by id: integers in their order; ids named by strings in natural
+    order, their digit runs read as numbers ("v2" before "v10"), so that a table whose ids
+    are strings replays as the same table with the integers they name does."""
+    groups = list(groups)
+    if all(isinstance(k, (int, np.integer)) for k, _ in groups):
+        return groups
+    return sorted(groups, key=lambda kg: _natural(kg[0]))
+
+
+def _natural(key: object) -> list:
+    parts = re.split(r"(\d+)", str(key))
+    return [int(p) if i % 2 else p for i, p in enumerate(parts)]
 
 
 def _refuse_jumps(df: pd.DataFrame, name: object) -> None:
