@@ -132,6 +132,13 @@ def test_velocities_that_do_not_describe_the_positions_are_refused(table, change
         ({"action": {"target_speeds": []}}, "action.target_speeds=[] is invalid"),
         ({"lanes_count": 0}, "lanes_count=0 is invalid"),
         ({"behavior": {"aggressive": {"time_gap": 1.0}}}, "is partial: give both classes"),
+        (
+            {"observation": {"vehicle_count": 40}},
+            "observation.vehicle_count is not a setting of the Kinematics observation (did "
+            "you mean 'vehicles_count'?)",
+        ),
+        ({"action": {"target_speed": [10, 20]}}, "(did you mean 'target_speeds'?)"),
+        ({"observation": {"type": "Kinematic"}}, "observation.type='Kinematic' is invalid"),
     ],
 )
 def test_gym_make_refuses_what_it_would_ignore_or_break_on(config, message):
@@ -143,6 +150,43 @@ def test_gym_make_refuses_what_it_would_ignore_or_break_on(config, message):
     with pytest.raises(ConfigError) as err:
         gym.make(ENV_ID, config=config)
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_nested_settings_refused_are_those_highway_env_ignores():
+    """The reference: highway-env's registered environments' own defaults. Every observation
+    and action setting in them is accepted, except a few that highway-env's classes take
+    and drop ("flatten", a continuous action's "target_speeds"): built with and without
+    such a key, the class holds the same state."""
+    from importlib import import_module
+
+    import gymnasium as gym
+
+    from bgap.common.errors import ConfigError
+    from bgap.traffic.scenario import NESTED_TYPES, _check_nested
+
+    checked, dropped = set(), set()
+    for spec in gym.registry.values():
+        if not str(spec.entry_point).startswith("highway_env."):
+            continue
+        module, name = spec.entry_point.split(":")
+        defaults = getattr(import_module(module), name).default_config()
+        for key, (where, classes) in NESTED_TYPES.items():
+            given, kind = dict(defaults[key]), defaults[key]["type"]
+            cls = getattr(import_module(where), classes[kind])
+            while True:
+                try:
+                    _check_nested(key, given, kind)
+                    break
+                except ConfigError as err:
+                    extra = str(err).split(" ")[0].split(".", 1)[1]
+                    kept = {k: v for k, v in given.items() if k not in ("type", extra)}
+                    with_it, without = cls(None, **kept, **{extra: given[extra]}), cls(None, **kept)
+                    assert repr(vars(with_it)) == repr(vars(without)), (spec.id, extra)
+                    dropped.add(extra)
+                    del given[extra]
+            checked.add(kind)
+    assert {"Kinematics", "DiscreteMetaAction", "ContinuousAction", "OccupancyGrid"} <= checked
+    assert dropped == {"flatten", "target_speeds"}
 
 
 def test_gym_make_merges_nested_settings_as_the_docs_example_needs():

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import copy
 import difflib
+import inspect
 import math
 from dataclasses import asdict, dataclass, field
+from importlib import import_module
 from typing import Any, Protocol
 
 import numpy as np
@@ -241,7 +243,66 @@ def merged_config(base: dict[str, Any], config: dict[str, Any] | None) -> dict[s
     merged = copy.deepcopy(base)
     for key, value in config.items():
         merged[key] = _merge(merged.get(key), value)
+    for key in NESTED_TYPES:
+        if isinstance(config.get(key), dict) and isinstance(merged.get(key), dict):
+            _check_nested(key, config[key], merged[key].get("type"))
     return merged
+
+
+NESTED_TYPES = {
+    "observation": (
+        "highway_env.envs.common.observation",
+        {
+            "Kinematics": "KinematicObservation",
+            "OccupancyGrid": "OccupancyGridObservation",
+            "KinematicsGoal": "KinematicsGoalObservation",
+            "TimeToCollision": "TimeToCollisionObservation",
+            "GrayscaleObservation": "GrayscaleObservation",
+            "AttributesObservation": "AttributesObservation",
+            "MultiAgentObservation": "MultiAgentObservation",
+            "TupleObservation": "TupleObservation",
+            "LidarObservation": "LidarObservation",
+            "ExitObservation": "ExitObservation",
+        },
+    ),
+    "action": (
+        "highway_env.envs.common.action",
+        {
+            "ContinuousAction": "ContinuousAction",
+            "DiscreteAction": "DiscreteAction",
+            "DiscreteMetaAction": "DiscreteMetaAction",
+            "MultiAgentAction": "MultiAgentAction",
+        },
+    ),
+}
+"""The nested settings whose keys are their type's: highway-env's factories
+(``observation_factory``, ``action_factory``) map each ``type`` to a class that takes its
+settings as keyword arguments and silently drops any it does not know."""
+
+
+def _check_nested(key: str, given: dict[str, Any], kind: Any) -> None:
+    """Refuse a key of ``given`` (the ``observation`` or ``action`` dict a user passed) that
+    its type's class does not take: ``{"observation": {"vehicle_count": 40}}`` would
+    otherwise observe the default 5 vehicles without a word."""
+    module, classes = NESTED_TYPES[key]
+    check(kind in classes, f"{key}.type", kind, f"use one of {sorted(classes)}")
+    known = {"type", *_parameters(getattr(import_module(module), classes[kind]))}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        close = difflib.get_close_matches(unknown[0], sorted(known), n=1)
+        hint = f"did you mean {close[0]!r}?" if close else f"its keys: {sorted(known)}"
+        raise ConfigError(f"{key}.{unknown[0]} is not a setting of the {kind} {key} ({hint})")
+
+
+def _parameters(cls: type) -> set[str]:
+    """The keyword parameters of ``cls``'s constructor and of the constructors it calls."""
+    names = set()
+    for klass in cls.__mro__:
+        if klass.__module__.startswith("highway_env") and "__init__" in vars(klass):
+            for name, p in inspect.signature(klass.__init__).parameters.items():
+                if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+                    names.add(name)
+    return names - {"self", "env"}
 
 
 def _merge(base: Any, value: Any) -> Any:
