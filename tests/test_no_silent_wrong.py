@@ -406,3 +406,103 @@ def test_the_saved_config_is_the_config_the_command_used(name, tmp_path, monkeyp
         expected.pop("mix_sampling")
         saved.pop("behavior"), expected.pop("behavior")
     assert saved == expected
+
+
+@st.composite
+def _drives(draw) -> tuple[pd.DataFrame, list]:
+    """A physically consistent table: 2-6 vehicles at 5-40 m/s in two lanes, 10 Hz for 2-5 s,
+    with velocities; their ids integers, strings or both; and the integers they stand for."""
+    n = draw(st.integers(2, 6))
+    steps = draw(st.integers(20, 50))
+    kind = draw(st.sampled_from(["int", "str", "mixed"]))
+    numbers = draw(st.lists(st.integers(0, 500), min_size=n, max_size=n, unique=True))
+    speeds = draw(st.lists(st.floats(5.0, 40.0), min_size=n, max_size=n))
+    ids = [v if kind == "int" or (kind == "mixed" and k % 2) else f"car{v}"
+           for k, v in enumerate(numbers)]  # fmt: skip
+    t = np.arange(steps) / 10.0
+    rows = [
+        pd.DataFrame(
+            {
+                "vehicle_id": [ident] * steps,
+                "time": t,
+                "x": 20.0 * k + speed * t,
+                "y": 4.0 * (k % 2),
+                "vx": speed,
+                "vy": 0.0,
+            }
+        )  # fmt: skip
+        for k, (ident, speed) in enumerate(zip(ids, speeds, strict=True))
+    ]
+    return pd.concat(rows, ignore_index=True), numbers
+
+
+DEFECTS = {
+    "none": (lambda t: t, None),
+    "km/h": (lambda t: t.assign(vx=t.vx * 3.6), "vx looks like km/h: divide it by 3.6"),
+    "feet per second": (lambda t: t.assign(vx=t.vx * 3.28084), "x the speed its positions"),
+    "clock backwards": (lambda t: t.assign(time=t.time.max() - t.time), "may run backwards"),
+    "halved": (lambda t: t.assign(vx=t.vx * 0.4), "x the speed its positions change at"),
+}
+
+
+@settings(max_examples=100, derandomize=True, deadline=None, database=None)
+@given(_drives(), st.sampled_from(list(DEFECTS)))
+def test_generated_tables_with_any_ids_read_or_their_defect_is_one_line(drive, defect):
+    """Any id type reads as the table of the integers it names; each unit error, reversed
+    clock or inconsistent velocity is refused in one line naming it."""
+    from bgap.common.tables import load_trajectories
+
+    table, numbers = drive
+    change, message = DEFECTS[defect]
+    if message is not None:
+        with pytest.raises(TrajectoryError, match=re.escape(message)) as err:
+            load_trajectories(change(table), fps=10)
+        assert "\n" not in str(err.value)
+        return
+    read = load_trajectories(table, fps=10)
+    names = dict(zip(table.vehicle_id.unique(), numbers, strict=True))
+    as_int = load_trajectories(table.assign(vehicle_id=table.vehicle_id.map(names)), fps=10)
+    key = ["episode", "frame"]
+    read = read.assign(vehicle_id=read.vehicle_id.map(names)).sort_values([*key, "vehicle_id"])
+    as_int = as_int.sort_values([*key, "vehicle_id"])
+    columns = [*key, "time", "vehicle_id", "x", "y", "vx", "vy"]
+    pd.testing.assert_frame_equal(
+        read[columns].reset_index(drop=True), as_int[columns].reset_index(drop=True),
+        check_dtype=False,
+    )  # fmt: skip
+
+
+VALUES = st.one_of(
+    st.integers(-3, 12),
+    st.floats(allow_nan=True, allow_infinity=True, width=32),
+    st.sampled_from(["", "dense", [], [1, 2]]),
+)
+ENV_KEYS = ["vehicles_count", "lanes_count", "duration", "mix", "perception_radius",
+            "policy_frequency", "vehicle_count", "lane_count", "radius"]  # fmt: skip
+
+
+@settings(max_examples=400, derandomize=True, deadline=None, database=None)
+@given(
+    st.dictionaries(st.sampled_from(ENV_KEYS), VALUES, max_size=3),
+    st.dictionaries(st.sampled_from(["vehicles_count", "vehicle_count", "order"]), VALUES,
+                    max_size=2),
+)  # fmt: skip
+def test_generated_gym_make_configs_are_honoured_or_refused_in_one_line(top, observation):
+    """Whatever a script passes to ``gym.make``: the environment runs with exactly those
+    settings, or one ConfigError (a ValueError) names the key; nothing else escapes."""
+    import gymnasium as gym
+
+    from bgap import ENV_ID
+    from bgap.common.errors import ConfigError
+
+    config = {**top, **({"observation": observation} if observation else {})}
+    try:
+        env = gym.make(ENV_ID, config=config)
+        env.reset(seed=0)
+        env.step(1)
+    except ConfigError as err:
+        assert "\n" not in str(err)
+        return
+    used = env.unwrapped.config
+    assert all(used[k] == v for k, v in top.items()), (config, used)
+    assert all(used["observation"][k] == v for k, v in observation.items())

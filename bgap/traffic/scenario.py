@@ -338,13 +338,13 @@ def check_config(config: dict[str, Any]) -> None:
     dictionaries users pass to ``gym.make`` or ``VectorHighway`` directly.)"""
     mix, radius = config["mix"], config["perception_radius"]
     check(
-        isinstance(mix, (int, float)) and 0.0 <= float(mix) <= 1.0,
+        _number(mix) and 0.0 <= float(mix) <= 1.0,
         "mix",
         mix,
         "must lie in [0, 1], the fraction of aggressive vehicles (e.g. mix=0.6)",
     )
     check(
-        isinstance(radius, (int, float)) and math.isfinite(radius) and radius > 0,
+        _number(radius) and radius > 0,
         "radius",
         radius,
         "must be a positive perception distance in metres (e.g. radius=90; the "
@@ -355,26 +355,38 @@ def check_config(config: dict[str, Any]) -> None:
     unknown = set(config["behavior"]) - {"name", *CLASSES}
     check(not unknown, "behavior", sorted(unknown), f"unknown classes; use {list(CLASSES)}")
     n = config["vehicles_count"]
-    check(isinstance(n, int) and n >= 0, "vehicles_count", n, "must be an integer >= 0")
+    check(_whole(n) and n >= 0, "vehicles_count", n, "must be an integer >= 0")
+    observation = config.get("observation") or {}
+    if observation.get("type") == "Kinematics":
+        rows, order = observation.get("vehicles_count", 5), observation.get("order", "sorted")
+        check(_whole(rows) and rows >= 1,
+              "observation.vehicles_count", rows, "must be an integer >= 1 (the ego's row, "
+              "then the vehicles it observes)")  # fmt: skip
+        check(order in ("sorted", "shuffled"), "observation.order", order,
+              "use 'sorted' (nearest first) or 'shuffled'")  # fmt: skip
     lanes = config.get("lanes_count", 1)
-    check(isinstance(lanes, int) and lanes >= 1, "lanes_count", lanes, "must be an integer >= 1")
+    check(_whole(lanes) and lanes >= 1, "lanes_count", lanes, "must be an integer >= 1")
     duration = config.get("duration", 1.0)
     check(
-        isinstance(duration, (int, float)) and math.isfinite(duration) and duration > 0,
+        _number(duration) and duration > 0,
         "duration",
         duration,
         "must be a positive number of seconds",
     )
     speeds = (config.get("action") or {}).get("target_speeds", [1.0])
     check(
-        len(speeds) >= 1 and all(math.isfinite(v) and v > 0 for v in speeds),
+        isinstance(speeds, (list, tuple, np.ndarray))
+        and len(speeds) >= 1
+        and all(_number(v) and v > 0 for v in speeds),
         "action.target_speeds",
         speeds,
         "must be one or more positive speeds [m/s] (env.ego_speeds)",
     )
-    sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
+    sim, pol = config["simulation_frequency"], config["policy_frequency"]
+    for key, hz in (("simulation_frequency", sim), ("policy_frequency", pol)):
+        check(_whole(hz) and hz >= 1, key, hz, "must be a whole number of steps a second >= 1")
     check(
-        pol >= 1 and sim % pol == 0,
+        sim % pol == 0,
         "simulation_frequency",
         sim,
         f"must be a multiple of policy_frequency ({pol})",
@@ -382,6 +394,20 @@ def check_config(config: dict[str, Any]) -> None:
     traffic = config.get("traffic")
     if traffic:  # replayed traffic (bgap.traffic.replay): the schema's checks
         TrafficConfig(**{k: v for k, v in traffic.items() if k != "name"})
+
+
+def _number(value: Any) -> bool:
+    """A finite int or float (not a bool, a string or None)."""
+    return (
+        isinstance(value, (int, float, np.integer, np.floating))
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+    )
+
+
+def _whole(value: Any) -> bool:
+    """An int (not a bool; a float such as 5.0 would reach array shapes and ranges)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 def env_preset(name: str) -> EnvConfig:
