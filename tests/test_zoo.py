@@ -258,7 +258,12 @@ def test_evaluating_a_zoo_name_plays_the_same_episodes_as_its_run_folder(
         (
             "bgap.simulate",
             ["traffic=replay", "traffic.table=t.parquet", "backend=highway"],
-            "replayed traffic runs on the vector backend only",
+            "a replayed table is its own recording",
+        ),
+        (
+            "bgap.simulate",
+            ["traffic=replay", "traffic.table=t.parquet", "backend=vector"],
+            "play a policy in it with bgap.evaluate traffic=replay",
         ),
     ],
 )

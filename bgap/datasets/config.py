@@ -40,10 +40,11 @@ class SimulateConfig(BaseConfig):
     def __post_init__(self) -> None:
         # before the base checks, which read the table: the setting is refused either way
         check(
-            self.traffic.source != "replay" or self.backend == "vector",
+            self.traffic.source != "replay",
             "traffic",
             self.traffic.name,
-            "replayed traffic runs on the vector backend only: add backend=vector",
+            "simulate records bgap's own traffic, and a replayed table is its own recording; "
+            "play a policy in it with bgap.evaluate traffic=replay",
         )
         super().__post_init__()
         check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
