@@ -21,11 +21,11 @@ from bgap.agents.batched import (
     Schedule,
     StackedAdam,
     StackedReplay,
-    initial_parameters,
 )
 from bgap.agents.config import AgentConfig
 from bgap.agents.dqn import DQN
 from bgap.agents.per import PrioritizedReplayBuffer, PrioritizedSamples
+from bgap.agents.stacked_qnets import initial_parameters
 
 ROOT = Path(__file__).resolve().parent.parent
 OBS = gym.spaces.Box(-1.0, 1.0, (5, 5), np.float32)

@@ -127,7 +127,7 @@ def test_the_backends_agree_on_the_added_columns(options):
     parity), each observed through the options: the same columns, step after step, also in
     the observation an episode ended in."""
     from bgap.envs import make_env
-    from bgap.sim.vector import scene_from_highway
+    from bgap.sim.highway_scenes import scene_from_highway
 
     cfg = make_cfg("env=dense", "mix=0.5")
     config = env_config(cfg)

@@ -167,3 +167,33 @@ def test_highd_classes_coded_as_numbers_are_read_as_text(tmp_path):
     table = highd.read(tmp_path / "01_tracks.csv")
     first = table[table.frame == 0].set_index("vehicle_id")
     assert first.label.to_dict() == {1: "1", 2: "2", 3: "1", 4: "1"}
+
+
+def test_sumo_fcd_as_xml2csv_writes_it_reads_and_scores(tmp_path):
+    """SUMO's floating car data (``--fcd-output``) converted by its ``xml2csv.py``: fields
+    separated by semicolons, columns prefixed by their XML element, vehicles named by
+    strings, 0.1-s time steps, speed and angle (not velocity components). Read as the same
+    table in bgap's names, with velocities from the positions, and scored the same."""
+    from bgap.cmetric import score_trajectories
+
+    rows = []
+    for vid, y, speed, x0 in (("flow0.0", -1.6, 30.0, 0.0), ("flow0.1", -4.8, 25.0, 20.0),
+                              ("veh7", -1.6, 28.0, 50.0)):  # fmt: skip
+        for k in range(40):  # 4 s
+            rows.append({"timestep_time": round(0.1 * k, 2), "vehicle_angle": 90.0,
+                         "vehicle_id": vid, "vehicle_lane": f"E0_{int(y < -3)}",
+                         "vehicle_pos": x0 + speed * 0.1 * k, "vehicle_slope": 0.0,
+                         "vehicle_speed": speed, "vehicle_type": "DEFAULT_VEHTYPE",
+                         "vehicle_x": x0 + speed * 0.1 * k, "vehicle_y": y})  # fmt: skip
+    fcd = pd.DataFrame(rows)
+    fcd.to_csv(tmp_path / "fcd.csv", sep=";", index=False)
+    ours = fcd.rename(columns={"timestep_time": "time", "vehicle_x": "x", "vehicle_y": "y"})
+    ours = ours[["time", "vehicle_id", "x", "y"]]
+    read = load_trajectories(tmp_path / "fcd.csv", fps=10)
+    same = load_trajectories(ours, fps=10)
+    pd.testing.assert_frame_equal(read[same.columns], same)
+    by_vehicle = read.groupby("vehicle_id").vx.median()
+    assert by_vehicle.to_dict() == pytest.approx({"flow0.0": 30.0, "flow0.1": 25.0, "veh7": 28.0})
+    scores = score_trajectories(tmp_path / "fcd.csv", fps=10).vehicles
+    pd.testing.assert_frame_equal(scores, score_trajectories(ours, fps=10).vehicles)
+    assert sorted(scores.vehicle_id) == ["flow0.0", "flow0.1", "veh7"]

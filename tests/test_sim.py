@@ -13,7 +13,8 @@ from highway_env.vehicle.behavior import IDMVehicle
 from bgap.common.vocab import IDLE
 from bgap.envs import make_env
 from bgap.sim import core
-from bgap.sim.vector import VectorHighway, scene_from_highway
+from bgap.sim.highway_scenes import scene_from_highway
+from bgap.sim.vector import VectorHighway
 from bgap.traffic.behaviors import BehaviorVehicle
 from bgap.traffic.scenario import env_config, fast_mode
 from tests.conftest import make_cfg
@@ -155,7 +156,7 @@ def test_initial_scenes_have_highway_envs_distribution():
 def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) -> None:
     """The scene draw as numpy code (VectorHighway._spawn before it was compiled), the
     reference core.spawn must reproduce draw for draw."""
-    from bgap.sim.vector import _COLUMNS, IDM_DEFAULTS, _column_value
+    from bgap.sim.highway_params import _COLUMNS, IDM_DEFAULTS, _column_value
     from bgap.traffic.behaviors import DRIVER_ATTRIBUTES, is_stock
 
     cfg, lanes, n = venv.config, venv.lanes, venv.n

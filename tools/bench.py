@@ -430,7 +430,7 @@ def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: i
     # Imported here: each benchmark loads only what it measures (cmetric: no torch).
     import torch
 
-    from bgap.agents.batched import default_device
+    from bgap.agents.stacked_qnets import default_device
 
     threads = threads or os.cpu_count() or 1
     study = 40 * 180_000  # transitions = updates at the paper's replay ratio

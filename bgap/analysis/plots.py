@@ -224,6 +224,65 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     return True
 
 
+def _yardstick_panel(
+    ax, table: pd.DataFrame, family: str, metric: str, xlabel: str, title: str, arms: list[str]
+) -> None:
+    """One panel of :func:`yardstick`: each arm's ``family`` policy, the rule-based ego and
+    the other yardsticks in ``table``, ``metric`` against the speed, and the corner where a
+    policy meets the rule."""
+    rule = table.loc[("", "rule")]
+    x_edge = rule[metric] + (STOCK_MARGIN if metric == "collision_pct" else 0.0)
+    floor = RULE_FLOOR * rule.avg_speed
+    for j, arm in enumerate(arms):
+        if (arm, family) not in table.index:
+            continue
+        p = table.loc[(arm, family)]
+        if metric == "per_100km":
+            verdict = versus_rule(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
+        else:
+            ok = keeps_up(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
+            verdict = "keeps up" if ok else "falls short"
+        ax.errorbar(p[metric], p.avg_speed, capsize=3, ls="none", marker="o", ms=6,
+                    color=f"C{j}", label=f"{arm}: {verdict}",
+                    xerr=[[max(p[metric] - p[f"{metric}_lo"], 0)],
+                          [max(p[f"{metric}_hi"] - p[metric], 0)]],
+                    yerr=[[max(p.avg_speed - p.avg_speed_lo, 0)],
+                          [max(p.avg_speed_hi - p.avg_speed, 0)]])  # fmt: skip
+    ax.errorbar(rule[metric], rule.avg_speed, capsize=3, ls="none", marker="*", ms=13,
+                color="k", label="rule-based ego",
+                xerr=[[max(rule[metric] - rule[f"{metric}_lo"], 0)],
+                      [max(rule[f"{metric}_hi"] - rule[metric], 0)]],
+                yerr=[[max(rule.avg_speed - rule.avg_speed_lo, 0)],
+                      [max(rule.avg_speed_hi - rule.avg_speed, 0)]])  # fmt: skip
+    for name, marker in (("rule_tuned", "D"), ("idm", "X")):  # the other yardsticks
+        if ("", name) not in table.index:
+            continue
+        y = table.loc[("", name)]
+        ax.errorbar(y[metric], y.avg_speed, capsize=3, ls="none", marker=marker, ms=8,
+                    color="0.35", label=YARDSTICK_NAMES[name],
+                    xerr=[[max(y[metric] - y[f"{metric}_lo"], 0)],
+                          [max(y[f"{metric}_hi"] - y[metric], 0)]],
+                    yerr=[[max(y.avg_speed - y.avg_speed_lo, 0)],
+                          [max(y.avg_speed_hi - y.avg_speed, 0)]])  # fmt: skip
+    top = max(ax.get_ylim()[1], floor + 1)
+    rule_text = (
+        f"fewer than it, at >= {RULE_FLOOR:g} x its speed"
+        if metric == "per_100km"
+        else f"<= {STOCK_MARGIN:g} point above it, at >= {RULE_FLOOR:g} x its speed"
+    )
+    ax.fill_between([0, x_edge], floor, top, color="tab:green", alpha=0.15, lw=0,
+                    label=f"meets the rule: {rule_text}")  # fmt: skip
+    ax.axhline(floor, color="tab:green", lw=0.8, ls="--")
+    ax.set_ylim(top=top)
+    ax.set_xscale("symlog", linthresh=1.0)
+    ax.set_xlim(left=-0.1)  # a point at 0 stays whole
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("mean speed [m/s]")
+    ax.set_title(title, fontsize=10)
+    # below the panel: inside it would hide points
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
+
+
 def yardstick(yard: Yardstick, path: Path) -> bool:
     """The two rules against the rule-based ego at a glance, per arm that trains both families
     (:func:`bgap.analysis.tables.yardstick_cells`): left, the behaviour-rich policy's
@@ -249,57 +308,7 @@ def yardstick(yard: Yardstick, path: Path) -> bool:
     else:
         axes[1].set_axis_off()
     for ax, table, family, metric, xlabel, title in panels:
-        rule = table.loc[("", "rule")]
-        x_edge = rule[metric] + (STOCK_MARGIN if metric == "collision_pct" else 0.0)
-        floor = RULE_FLOOR * rule.avg_speed
-        for j, arm in enumerate(arms):
-            if (arm, family) not in table.index:
-                continue
-            p = table.loc[(arm, family)]
-            if metric == "per_100km":
-                verdict = versus_rule(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
-            else:
-                ok = keeps_up(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
-                verdict = "keeps up" if ok else "falls short"
-            ax.errorbar(p[metric], p.avg_speed, capsize=3, ls="none", marker="o", ms=6,
-                        color=f"C{j}", label=f"{arm}: {verdict}",
-                        xerr=[[max(p[metric] - p[f"{metric}_lo"], 0)],
-                              [max(p[f"{metric}_hi"] - p[metric], 0)]],
-                        yerr=[[max(p.avg_speed - p.avg_speed_lo, 0)],
-                              [max(p.avg_speed_hi - p.avg_speed, 0)]])  # fmt: skip
-        ax.errorbar(rule[metric], rule.avg_speed, capsize=3, ls="none", marker="*", ms=13,
-                    color="k", label="rule-based ego",
-                    xerr=[[max(rule[metric] - rule[f"{metric}_lo"], 0)],
-                          [max(rule[f"{metric}_hi"] - rule[metric], 0)]],
-                    yerr=[[max(rule.avg_speed - rule.avg_speed_lo, 0)],
-                          [max(rule.avg_speed_hi - rule.avg_speed, 0)]])  # fmt: skip
-        for name, marker in (("rule_tuned", "D"), ("idm", "X")):  # the other yardsticks
-            if ("", name) not in table.index:
-                continue
-            y = table.loc[("", name)]
-            ax.errorbar(y[metric], y.avg_speed, capsize=3, ls="none", marker=marker, ms=8,
-                        color="0.35", label=YARDSTICK_NAMES[name],
-                        xerr=[[max(y[metric] - y[f"{metric}_lo"], 0)],
-                              [max(y[f"{metric}_hi"] - y[metric], 0)]],
-                        yerr=[[max(y.avg_speed - y.avg_speed_lo, 0)],
-                              [max(y.avg_speed_hi - y.avg_speed, 0)]])  # fmt: skip
-        top = max(ax.get_ylim()[1], floor + 1)
-        rule_text = (
-            f"fewer than it, at >= {RULE_FLOOR:g} x its speed"
-            if metric == "per_100km"
-            else f"<= {STOCK_MARGIN:g} point above it, at >= {RULE_FLOOR:g} x its speed"
-        )
-        ax.fill_between([0, x_edge], floor, top, color="tab:green", alpha=0.15, lw=0,
-                        label=f"meets the rule: {rule_text}")  # fmt: skip
-        ax.axhline(floor, color="tab:green", lw=0.8, ls="--")
-        ax.set_ylim(top=top)
-        ax.set_xscale("symlog", linthresh=1.0)
-        ax.set_xlim(left=-0.1)  # a point at 0 stays whole
-        ax.set_xlabel(xlabel)
-        ax.set_ylabel("mean speed [m/s]")
-        ax.set_title(title, fontsize=10)
-        # below the panel: inside it would hide points
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
+        _yardstick_panel(ax, table, family, metric, xlabel, title, arms)
     fig.suptitle("Against the rule-based ego (the two rules; 95% intervals)", fontsize=11)
     fig.tight_layout()
     write_atomic(path, lambda p: fig.savefig(p, dpi=120))

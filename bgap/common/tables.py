@@ -40,7 +40,7 @@ def read_table(source: str | Path | pd.DataFrame) -> pd.DataFrame:
     if suffix not in (".parquet", ".pq", ".csv"):
         raise TrajectoryError(f"{path}: unknown format {path.suffix!r}; use .csv or .parquet")
     if suffix == ".csv":
-        return read_csv(path)
+        return read_csv(path, sep=_separator(path))
     return _guarded(path, "Parquet", lambda: pd.read_parquet(path))
 
 
@@ -48,6 +48,17 @@ def read_csv(path: Path, **kwargs: Any) -> pd.DataFrame:
     """``pd.read_csv(path, **kwargs)`` with a damaged file as one :class:`TrajectoryError`
     (empty, not UTF-8, ragged rows): every command that reads a CSV table reads it here."""
     return _guarded(path, "CSV", lambda: pd.read_csv(path, **kwargs))
+
+
+def _separator(path: Path) -> str:
+    """The CSV's field separator: ``;`` where its header has semicolons and no comma (SUMO's
+    ``xml2csv.py`` writes its FCD export so), else ``,``."""
+    try:
+        with path.open(encoding="utf-8") as f:
+            header = f.readline()
+    except (OSError, UnicodeDecodeError):
+        return ","  # the read itself says what is wrong
+    return ";" if ";" in header and "," not in header else ","
 
 
 def _guarded(path: Path, kind: str, read: Callable[[], pd.DataFrame]) -> pd.DataFrame:
@@ -74,7 +85,18 @@ def _guarded(path: Path, kind: str, read: Callable[[], pd.DataFrame]) -> pd.Data
 
 
 # ---------------------------------------------------------------- trajectory tables
-ALIASES = {"id": "vehicle_id", "track_id": "vehicle_id", "t": "time", "scene": "episode"}
+ALIASES = {
+    "id": "vehicle_id",
+    "track_id": "vehicle_id",
+    "t": "time",
+    "scene": "episode",
+    # SUMO's floating car data as xml2csv.py writes it (fcd-output; its vehicle_speed and
+    # vehicle_angle stay extra columns: velocities come from the positions)
+    "timestep_time": "time",
+    "vehicle_x": "x",
+    "vehicle_y": "y",
+}
+"""Other tools' column names for bgap's."""
 
 
 def load_trajectories(
@@ -92,21 +114,7 @@ def load_trajectories(
     df = read_table(source)
     if "episode" in df.columns and "scene" in df.columns:
         df = df.drop(columns="scene")  # documented precedence: episode
-    df = df.rename(columns=lambda c: ALIASES.get(str(c), str(c)))
-    if df.columns.duplicated().any():
-        twice = sorted(set(df.columns[df.columns.duplicated()]))
-        raise TrajectoryError(
-            f"columns {twice} are given twice (under their name and an alias, "
-            f"{ALIASES}); keep one of each"
-        )
-    missing = [c for c in ("vehicle_id", "x", "y") if c not in df.columns]
-    if "frame" not in df.columns and "time" not in df.columns:
-        missing.append("frame or time")
-    if missing:
-        raise TrajectoryError(
-            f"trajectory table is missing column(s) {missing}; found {list(df.columns)}. "
-            "Needed: vehicle_id, frame or time, x, y (optional vx, vy, episode, label)"
-        )
+    df = _standard_columns(df)
     if "episode" not in df.columns:
         df["episode"] = 0
     numeric = [c for c in ("frame", "time", "x", "y", "vx", "vy") if c in df.columns]
@@ -158,6 +166,27 @@ def load_trajectories(
     keep = ["episode", "frame", "time", "vehicle_id", "x", "y", "vx", "vy"]
     keep += [c for c in ("label", *extra) if c in df.columns]
     return df[keep]
+
+
+def _standard_columns(df: pd.DataFrame) -> pd.DataFrame:
+    """``df`` with its aliases renamed to the standard names (:data:`ALIASES`); refused where
+    a column is given twice or a needed one is missing."""
+    df = df.rename(columns=lambda c: ALIASES.get(str(c), str(c)))
+    if df.columns.duplicated().any():
+        twice = sorted(set(df.columns[df.columns.duplicated()]))
+        raise TrajectoryError(
+            f"columns {twice} are given twice (under their name and an alias, "
+            f"{ALIASES}); keep one of each"
+        )
+    missing = [c for c in ("vehicle_id", "x", "y") if c not in df.columns]
+    if "frame" not in df.columns and "time" not in df.columns:
+        missing.append("frame or time")
+    if missing:
+        raise TrajectoryError(
+            f"trajectory table is missing column(s) {missing}; found {list(df.columns)}. "
+            "Needed: vehicle_id, frame or time, x, y (optional vx, vy, episode, label)"
+        )
+    return df
 
 
 def _refuse_own_clocks(df: pd.DataFrame) -> None:

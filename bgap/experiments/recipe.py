@@ -46,19 +46,23 @@ import optuna
 import pandas as pd
 from omegaconf import DictConfig
 
-from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
 from bgap.common.config import app, load, validate
-from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
-from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
-from bgap.experiments.evaluate import crash_split
+from bgap.experiments.evaluate_results import crash_split
+from bgap.experiments.recipe_choice import choose, choose_by_rule
+from bgap.experiments.recipe_report import (
+    NO_VALIDATION,
+    curves,
+    markdown,
+    markdown_by_rule,
+    markdown_levers,
+    plot_curves,
+)
 from bgap.experiments.sweep import (
-    RULE_KEYS,
     figures_with_rule,
     finished,
-    objective,
     rule_score,
     study_name,
     sweep,
@@ -272,83 +276,6 @@ def _check_both(
     return row
 
 
-def choose_by_rule(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
-    """Mode ``rule``: per candidate, the means over seeds of :data:`RULE_KEYS`, 95% t
-    intervals across seeds of the policies' rates and speeds, and the objective of the means
-    (:func:`~bgap.experiments.sweep.rule_score`); best first."""
-    rows = []
-    for trial, g in table.groupby("trial"):
-        row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
-        row |= {key: float(g[key].mean()) for key in RULE_KEYS}
-        # across seeds (the independent units), widened where needed to the pooled
-        # episodes' exact interval: never of zero width
-        for prefix in ("", "stock_"):
-            crashes, km = int(g[f"{prefix}crashes"].sum()), float(g[f"{prefix}km"].sum())
-            episodes = int(g[f"{prefix}episodes"].sum())
-            pooled = {
-                "per_100km": poisson_interval(crashes, km / 100.0),
-                "collision_pct": tuple(100 * b for b in wilson_interval(crashes, episodes)),
-                "avg_speed": (np.inf, -np.inf),
-            }
-            for key, (p_lo, p_hi) in pooled.items():
-                lo, hi = t_interval(g[f"{prefix}{key}"].to_numpy())
-                row[f"{prefix}{key}_lo"] = max(min(lo, p_lo), 0.0)
-                row[f"{prefix}{key}_hi"] = max(hi, p_hi)
-        row["objective"] = rule_score(cfg, row)
-        rows.append(row)
-    return pd.DataFrame(rows).sort_values(["objective", "trial"]).reset_index(drop=True)
-
-
-def markdown_by_rule(cfg: RecipeConfig, summary: pd.DataFrame, params: dict) -> str:
-    lines = [
-        f"# Recipe check: the {len(summary)} best sweep trials, {len(cfg.check_seeds)} training "
-        f"seeds each, {cfg.check_episodes} validation episodes per seed and policy",
-        "",
-        f"Learner: {cfg.agent.algo} (agent={cfg.agent.name}). Traffic: {cfg.env.name}, mix "
-        f"sampling {cfg.mix_sampling} for the behaviour-rich policy; highway-env's stock "
-        "traffic for the default policy. Objective (fixed before the search): each "
-        f"policy at {cfg.rule_floor:g} x the rule-based ego's speed or more, then the worse of "
-        "the behaviour-rich policy's collisions per 100 km minus the rule-based ego's and the "
-        "default policy's collision % minus the rule-based ego's minus "
-        f"{cfg.stock_margin:g}; below 0 both rules are met. Intervals: 95% t across seeds.",
-        "",
-        "| trial | behaviour-rich per 100 km [95% CI] | speed m/s [95% CI] | rule per 100 km / "
-        "m/s | default in stock % [95% CI] | speed m/s | rule in stock % / m/s | objective "
-        "| settings |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in summary.itertuples():
-        settings = ", ".join(
-            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-            for k, v in params[r.trial].items()
-        )
-        lines.append(
-            f"| {r.trial}{' (chosen)' if r.Index == 0 else ''} | {r.per_100km:.2f} "
-            f"[{r.per_100km_lo:.2f}, {r.per_100km_hi:.2f}] | {r.avg_speed:.2f} "
-            f"[{r.avg_speed_lo:.2f}, {r.avg_speed_hi:.2f}] | {r.rule_per_100km:.2f} / "
-            f"{r.rule_avg_speed:.2f} | {r.stock_collision_pct:.1f} "
-            f"[{r.stock_collision_pct_lo:.1f}, {r.stock_collision_pct_hi:.1f}] | "
-            f"{r.stock_avg_speed:.2f} | "
-            f"{r.stock_rule_collision_pct:.1f} / {r.stock_rule_avg_speed:.2f} | "
-            f"{r.objective:.2f} | {settings} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-STOCK_KEYS = ("stock_collision_pct", "stock_avg_speed", "stock_idle_collision_pct",
-              "stock_idle_avg_speed")  # fmt: skip
-"""The default policy's figures in stock traffic (``stock_check``), per check seed."""
-
-
-def meets_stock_rule(cfg: RecipeConfig, row: Any) -> bool:
-    """The stock rule for the default policy in its own traffic: fewer than
-    ``stock_max_collision_pct`` collisions at ``speed_floor`` x idle's mean speed."""
-    return bool(
-        row["stock_collision_pct"] < cfg.stock_max_collision_pct
-        and row["stock_avg_speed"] >= cfg.speed_floor * row["stock_idle_avg_speed"]
-    )
-
-
 def check_levers(
     cfg: RecipeConfig,
     trial: optuna.trial.FrozenTrial,
@@ -370,179 +297,6 @@ def check_levers(
     kept = [lever for lever in cfg.levers if lever not in {v.label for v in variants}]
     write_atomic(out / "levers.md", markdown_levers(cfg, chosen.iloc[0], levers, kept))
     return {"levers": out / "levers.md"}
-
-
-def markdown_levers(
-    cfg: RecipeConfig, chosen: pd.Series, levers: pd.DataFrame, kept: list[str]
-) -> str:
-    trial = int(chosen.trial)  # a row of numbers only: pandas reads the number as a float
-    lines = [
-        f"# Levers of the chosen recipe (trial {trial}), one switched at a time",
-        "",
-        f"Each row trains the chosen recipe with one setting changed, on the check's "
-        f"{len(cfg.check_seeds)} training seeds x {cfg.check_episodes} validation episodes per "
-        "seed and policy, scored by the search's objective (below 0: both rules "
-        "are met). The change in objective is the row's minus the recipe's: positive, the "
-        "lever as the recipe has it helps. Intervals: 95% t across seeds.",
-        "",
-        "| setting | behaviour-rich per 100 km [95% CI] | speed m/s | default in stock % "
-        "[95% CI] | speed m/s | objective | change |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for label, r in [(f"the recipe (trial {trial})", chosen)] + [
-        (f"`{r.trial}`", r) for _, r in levers.iterrows()
-    ]:
-        lines.append(
-            f"| {label} | {r.per_100km:.2f} [{r.per_100km_lo:.2f}, {r.per_100km_hi:.2f}] | "
-            f"{r.avg_speed:.2f} | {r.stock_collision_pct:.1f} [{r.stock_collision_pct_lo:.1f}, "
-            f"{r.stock_collision_pct_hi:.1f}] | {r.stock_avg_speed:.2f} | {r.objective:.2f} | "
-            f"{r.objective - chosen.objective:+.2f} |"
-        )
-    if kept:
-        lines += [
-            "",
-            "Left out (the recipe already has them): " + ", ".join(f"`{k}`" for k in kept),
-        ]
-    if not cfg.levers:
-        lines += ["", "No lever was asked for (`levers=[]`): the recipe's row alone."]
-    return "\n".join(lines) + "\n"
-
-
-def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
-    """Per candidate: means over seeds, 95% t intervals across seeds, the objective of the
-    means; sorted best first. With the stock check's columns, candidates whose default
-    policy meets :func:`meets_stock_rule` (on its means over seeds) come first."""
-    stock = all(key in table for key in STOCK_KEYS)
-    rows = []
-    for trial, g in table.groupby("trial"):
-        row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
-        for key in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed",
-                    "rule_collision_pct", "rule_avg_speed", "lane_changes",
-                    *(f"{kind}_pct" for kind in CRASH_KINDS),
-                    *(STOCK_KEYS if stock else ())):  # fmt: skip
-            row[key] = float(g[key].mean()) if key in g else 0.0
-        for key, top in (("collision_pct", 100.0), ("avg_speed", np.inf)):
-            lo, hi = t_interval(g[key].to_numpy())
-            row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
-        row["objective"] = objective(cfg, row["collision_pct"], row["avg_speed"],
-                                     row["idle_avg_speed"])  # fmt: skip
-        if stock:
-            row["stock_rule"] = meets_stock_rule(cfg, row)
-        rows.append(row)
-    summary = pd.DataFrame(rows)
-    if not stock:
-        return summary.sort_values(["objective", "trial"]).reset_index(drop=True)
-    summary["_misses"] = ~summary.stock_rule
-    order = summary.sort_values(["_misses", "objective", "trial"]).drop(columns="_misses")
-    return order.reset_index(drop=True)
-
-
-def curves(run_dirs: list[str], study: optuna.Study | None = None) -> dict[str, pd.DataFrame]:
-    """Each training's validation curve by its run folder's name: its ``evaluations.csv``,
-    or where the folder is gone, the curve its check row kept in ``study``
-    (:func:`kept_row`); trainings with neither are left out."""
-    kept = {}
-    if study is not None:
-        kept = {
-            Path(dict(attr["row"])["run_dir"]).name: attr["curve"]
-            for key, attr in study.user_attrs.items()
-            if key.startswith("check-") and attr.get("curve")
-        }
-    found = {}
-    for run_dir in run_dirs:
-        name, evaluations = Path(run_dir).name, Path(run_dir) / "evaluations.csv"
-        if evaluations.exists():
-            found[name] = pd.read_csv(evaluations)
-        elif name in kept:
-            found[name] = pd.DataFrame(kept[name])
-    return found
-
-
-NO_VALIDATION = "no periodic validation in these trainings\n(profile.eval_every_episodes=0)"
-"""The learning curves' text where the trainings kept no validation curve."""
-
-
-def plot_curves(
-    found: dict[str, pd.DataFrame], path: Path, title: str, why_none: str = NO_VALIDATION
-) -> None:
-    """Validation collision % and speed against gradient updates, one line per seed
-    (:func:`curves`); without any, ``why_none`` in their place."""
-    plt = pyplot()
-
-    if not found:  # no curve to draw: say why in the figure itself
-        fig, ax = plt.subplots(figsize=(6, 1.5))
-        ax.text(0.5, 0.5, why_none, ha="center", va="center")
-        ax.set_axis_off()
-        write_atomic(path, lambda p: fig.savefig(p, dpi=110))
-        plt.close(fig)
-        return
-
-    from matplotlib.ticker import FuncFormatter  # loaded by pyplot() above
-
-    thousands = FuncFormatter(lambda v, _: f"{v / 1000:g}k")
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.2))
-    for name, ev in found.items():
-        label = name.rsplit("-", 1)[-1]
-        for ax, key in zip(axes, ("collision_pct", "avg_speed"), strict=True):
-            ax.plot(ev.gradient_updates, ev[key].rolling(5, min_periods=1).mean(), label=label)
-    first = next(iter(found.values()))
-    for ax, key, label in zip(
-        axes, ("collision_pct", "avg_speed"), ("collisions [% episodes]", "mean speed [m/s]"),
-        strict=True,
-    ):  # fmt: skip
-        for name, style in (("idle", "--"), ("rule", ":")):
-            ax.axhline(first[f"{name}_{key}"].iloc[-1], ls=style, color="gray", label=name)
-        ax.set_xlabel("gradient updates")
-        ax.xaxis.set_major_formatter(thousands)
-        ax.set_ylabel(f"validation {label}\n(running mean of 5 evaluations)")
-    axes[0].legend(fontsize=7)
-    fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
-    plt.close(fig)
-
-
-def markdown(cfg: RecipeConfig, summary: pd.DataFrame, params: dict[str, dict]) -> str:
-    lines = [
-        f"# Recipe check: the {len(summary)} best sweep trials, {len(cfg.check_seeds)} training "
-        f"seeds each, {cfg.check_episodes} validation episodes per seed",
-        "",
-        f"Traffic: {cfg.env.name}, mix sampling {cfg.mix_sampling}. Rule: fewest collisions "
-        f"among candidates whose mean speed is at least {cfg.speed_floor:g} x idle's. "
-        "Intervals: 95% t across training seeds.",
-        "",
-        "| trial | collisions % [95% CI] | crashes %: rear-end / rear-ended / lane change "
-        "| speed m/s [95% CI] | idle % / m/s | rule % / m/s | lane changes | settings |",
-        "|---|---|---|---|---|---|---|---|",
-    ]
-    for r in summary.itertuples():
-        settings = ", ".join(f"{k}={v:.4g}" for k, v in params[r.trial].items())
-        lines.append(
-            f"| {r.trial}{' (chosen)' if r.Index == 0 else ''} | {r.collision_pct:.1f} "
-            f"[{r.collision_pct_lo:.1f}, {r.collision_pct_hi:.1f}] | {r.rear_end_pct:.1f} / "
-            f"{r.rear_ended_pct:.1f} / {r.lane_change_pct:.1f} | {r.avg_speed:.2f} "
-            f"[{r.avg_speed_lo:.2f}, {r.avg_speed_hi:.2f}] | {r.idle_collision_pct:.1f} / "
-            f"{r.idle_avg_speed:.2f} | {r.rule_collision_pct:.1f} / {r.rule_avg_speed:.2f} "
-            f"| {r.lane_changes:.1f} | {settings} |"
-        )
-    if "stock_collision_pct" in summary:
-        lines += [
-            "",
-            "The default policy (the same recipe, trained in highway-env's stock traffic), on "
-            f"stock validation episodes; rule: under {cfg.stock_max_collision_pct:g}% "
-            f"collisions at {cfg.speed_floor:g} x idle's speed or more. Candidates that miss "
-            "it rank after those that meet it.",
-            "",
-            "| trial | collisions % | speed m/s | idle % / m/s | meets the rule |",
-            "|---|---|---|---|---|",
-            *(
-                f"| {r.trial} | {r.stock_collision_pct:.1f} | {r.stock_avg_speed:.2f} | "
-                f"{r.stock_idle_collision_pct:.1f} / {r.stock_idle_avg_speed:.2f} | "
-                f"{'yes' if r.stock_rule else '**no**'} |"
-                for r in summary.itertuples()
-            ),
-        ]
-    return "\n".join(lines) + "\n"
 
 
 def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:

@@ -30,10 +30,10 @@ from bgap.common.runs import (
 )
 from bgap.common.vocab import POLICIES, YARDSTICK_NAMES, YARDSTICKS
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
-from bgap.experiments.evaluate import (
+from bgap.experiments.evaluate import evaluate
+from bgap.experiments.evaluate_results import (
     compact,
     crash_split,
-    evaluate,
     format_table,
     plot_comparison,
     summarize,

@@ -341,17 +341,11 @@ def chosen_trial(study: optuna.Study, cfg: SweepConfig) -> optuna.trial.FrozenTr
     return min(front, key=lambda t: t.values[0] - cfg.speed_weight * t.values[1])
 
 
-def write_outputs(
-    study: optuna.Study, cfg: SweepConfig, chosen_label: str = "chosen"
-) -> dict[str, Path]:
-    """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
-    chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
-    plt = pyplot()
-
-    out = Path(cfg.out or Path(cfg.root) / "sweeps" / study_name(cfg))
-    out.mkdir(parents=True, exist_ok=True)
+def _trials_table(study: optuna.Study, cfg: SweepConfig) -> pd.DataFrame:
+    """One row per completed trial: its number, parameters, value and the scores it kept
+    (the rule's in rule mode, the policy's and the idle ego's otherwise), and its run folder."""
     done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
-    table = pd.DataFrame(
+    return pd.DataFrame(
         [
             {
                 "trial": t.number,
@@ -368,6 +362,18 @@ def write_outputs(
             for t in done
         ]
     )
+
+
+def write_outputs(
+    study: optuna.Study, cfg: SweepConfig, chosen_label: str = "chosen"
+) -> dict[str, Path]:
+    """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
+    chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
+    plt = pyplot()
+
+    out = Path(cfg.out or Path(cfg.root) / "sweeps" / study_name(cfg))
+    out.mkdir(parents=True, exist_ok=True)
+    table = _trials_table(study, cfg)
     write_atomic(out / "trials.csv", lambda p: table.to_csv(p, index=False))
     chosen = chosen_trial(study, cfg)
     paths = {"trials": out / "trials.csv"}

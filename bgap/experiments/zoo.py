@@ -26,7 +26,7 @@ from bgap.common.runs import CONFIG, MODEL, model_file, run_folders, write_atomi
 from bgap.common.tables import read_table
 from bgap.common.vocab import SPEED_FLOOR
 from bgap.experiments.config import CHECKPOINT_SEED, CHECKPOINTS
-from bgap.experiments.evaluate import run_records
+from bgap.experiments.evaluate_policies import run_records
 from bgap.runner.locks import exclusive
 
 

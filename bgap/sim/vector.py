@@ -4,7 +4,8 @@ The same traffic model as :class:`bgap.envs.highway.BehaviorHighwayEnv` (highway
 reference), kept in arrays and stepped by the numba kernels of :mod:`bgap.sim.core`. It
 takes the same config dictionary (:func:`bgap.traffic.scenario.env_config`), follows the
 gymnasium vector-env API with same-step auto-reset, and loads highway-env scenes
-(:func:`scene_from_highway`) so that the two can be compared from identical starts.
+(:func:`bgap.sim.highway_scenes.scene_from_highway`) so that the two can be compared from
+identical starts.
 
 Known differences from highway-env (README "Vectorised backend"):
 - initial scenes are drawn from the same distributions with a different random stream, so a
@@ -25,32 +26,27 @@ import numba
 import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
-from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.common.errors import ConfigError, check, check_memory
 from bgap.common.vocab import FINISHED
 from bgap.sim import core
 from bgap.sim.core import (
-    ACC,
     AGGRESSIVE,
     CONSERVATIVE,
     CRASHED,
     EGO,
-    HEADING,
     LABEL,
     LANE,
     N_FLOAT,
     N_INT,
     N_PARAM,
     SPEED,
-    SPEED_INDEX,
-    STEER,
     TARGET_LANE,
     TARGET_SPEED,
-    TIMER,
     X,
     Y,
 )
+from bgap.sim.highway_params import _COLUMNS, IDM_DEFAULTS, _column_value, check_supported
 from bgap.traffic.behaviors import (
     DRIVER_ATTRIBUTES,
     BehaviorVehicle,
@@ -62,72 +58,12 @@ from bgap.traffic.behaviors import (
 from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import REWARD_TERMS, contact_dx, full_config
 
-_CLASS_CODES = {"conservative": CONSERVATIVE, "aggressive": AGGRESSIVE}
 # The ctypes interface of numpy's PCG64, whose C functions every PCG64 stream shares: the
 # compiled scene draw calls them on each env's stream (core.spawn).
 _PCG64_KEPT = np.random.PCG64()  # alive, though only its functions are used
 _PCG64 = _PCG64_KEPT.ctypes
 
-# Parameter column of each IDMVehicle attribute, in highway-env's units except P_B, which
-# holds the braking magnitude -COMFORT_ACC_MIN.
-_COLUMNS = {
-    "TIME_WANTED": core.P_T,
-    "DISTANCE_WANTED": core.P_D0,
-    "COMFORT_ACC_MAX": core.P_A,
-    "COMFORT_ACC_MIN": core.P_B,
-    "DELTA": core.P_DELTA,
-    "POLITENESS": core.P_POLITENESS,
-    "LANE_CHANGE_MIN_ACC_GAIN": core.P_GAIN,
-    "LANE_CHANGE_MAX_BRAKING_IMPOSED": core.P_BSAFE,
-    "ACC_MAX": core.P_AMAX,
-    "MAX_SPEED": core.P_VMAX,
-}
 RECORD_FIELDS = ("x", "y", "vx", "vy", "speed", "lane", "crashed")
-
-
-def _column_value(attr: str, value: float) -> float:
-    return -value if attr == "COMFORT_ACC_MIN" else value
-
-
-def driver_params(vehicle: Any) -> np.ndarray:
-    """The IDM/MOBIL attributes of a highway-env vehicle (or vehicle class) as a parameter
-    row; P_OWN is left 0."""
-    row = np.zeros(N_PARAM)
-    for attr, col in _COLUMNS.items():
-        row[col] = _column_value(attr, float(getattr(vehicle, attr)))
-    return row
-
-
-# highway-env's IDMVehicle defaults (DISTANCE_WANTED = 5 m + LENGTH, DELTA 4, MAX_SPEED 40).
-IDM_DEFAULTS = driver_params(IDMVehicle)
-
-
-def check_supported(config: dict[str, Any]) -> None:
-    """Fail clearly on highway-env options the vectorised model does not implement."""
-    obs = config["observation"]
-    expected = {
-        "type": "Kinematics",
-        "absolute": False,
-        "normalize": True,
-        "clip": True,
-        "see_behind": True,
-        "order": "sorted",
-    }
-    for key, value in expected.items():
-        if obs.get(key, value) != value:
-            raise ValueError(
-                f"backend=vector supports observation.{key}={value!r} only (got {obs[key]!r}); "
-                "use backend=highway for other observations"
-            )
-    if list(obs.get("features", [])) != ["presence", "x", "y", "vx", "vy"]:
-        raise ValueError("backend=vector observes features presence, x, y, vx, vy only")
-    if config["action"]["type"] != "DiscreteMetaAction":
-        raise ValueError("backend=vector supports the DiscreteMetaAction ego only")
-    if config.get("controlled_vehicles", 1) != 1:
-        raise ValueError("backend=vector supports one controlled vehicle")
-    sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
-    if sim % pol:
-        raise ValueError("simulation_frequency must be a multiple of policy_frequency")
 
 
 @dataclass
@@ -365,7 +301,8 @@ class VectorHighway(gym.vector.VectorEnv):
         return table
 
     def load_scene(self, b: int, scene: Scene) -> None:
-        """Put ``scene`` (e.g. from :func:`scene_from_highway`) into env b."""
+        """Put ``scene`` (e.g. from :func:`~bgap.sim.highway_scenes.scene_from_highway`)
+        into env b."""
         if scene.f.shape[0] != self.n + 1:
             raise ValueError(f"scene has {scene.f.shape[0] - 1} vehicles, this env {self.n}")
         self.f[b], self.g[b], self.p[b] = scene.f, scene.g, scene.p
@@ -551,37 +488,3 @@ def initial_states(venv: VectorHighway) -> np.ndarray:
     for b in range(venv.num_envs):
         core.record(venv.f, venv.g, b, venv.n + 1, out, 0)
     return out
-
-
-def scene_from_highway(env: Any) -> Scene:
-    """The current scene of a highway-env ``BehaviorHighwayEnv`` in the kernel layout."""
-    env = env.unwrapped
-    vehicles = env.road.vehicles
-    ego = env.vehicle
-    if vehicles[0] is not ego:
-        raise ValueError("the ego must be the first vehicle of the road")
-    n = len(vehicles)
-    f, g, p = np.zeros((n, N_FLOAT)), np.zeros((n, N_INT), dtype=np.int64), np.zeros((n, N_PARAM))
-    p[:] = IDM_DEFAULTS
-    for i, v in enumerate(vehicles):
-        f[i, X], f[i, Y] = v.position
-        f[i, HEADING], f[i, SPEED] = v.heading, v.speed
-        f[i, TARGET_SPEED] = v.target_speed
-        f[i, STEER], f[i, ACC] = v.action["steering"], v.action["acceleration"]
-        if v.impact is not None:
-            f[i, core.IMPACT_X], f[i, core.IMPACT_Y] = v.impact
-            g[i, core.HAS_IMPACT] = 1
-        g[i, LANE], g[i, TARGET_LANE] = v.lane_index[2], v.target_lane_index[2]
-        g[i, CRASHED] = int(v.crashed)
-        p[i, core.P_VMAX] = v.MAX_SPEED
-        if v is ego:
-            g[i, LABEL] = EGO
-            g[i, SPEED_INDEX] = getattr(v, "speed_index", 0)
-            continue
-        if not isinstance(v, IDMVehicle):
-            raise ValueError(f"vehicle {i} is a {type(v).__name__}, not an IDM driver")
-        g[i, LABEL] = _CLASS_CODES[getattr(v, "bgap_label", "conservative")]
-        f[i, TIMER] = v.timer
-        p[i] = driver_params(v)
-        p[i, core.P_OWN] = float(isinstance(v, BehaviorVehicle))
-    return Scene(f, g, p, steps=int(round(env.time * env.config["policy_frequency"])))
