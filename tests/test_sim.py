@@ -400,7 +400,13 @@ def test_rollouts_that_skip_finished_envs_play_the_same_episodes(tmp_path, monke
             "traffic.min_duration=5",
             "backend=vector",
         ]
-        config = env_config(make_cfg("env=dense", "env.duration=12", *replay))
+        # replayed traffic is played, not recorded: the evaluation's schema composes it
+        from bgap.common.config import validate
+        from tests.configs import compose
+
+        config = env_config(
+            validate(compose("evaluate", ["env=dense", "env.duration=12", *replay]))
+        )
     seeds = list(range(24))
     skipped = rollout(config, "random", seeds, "vector", record=traffic != "replay")
     monkeypatch.setattr(VectorHighway, "skips_finished", False)
