@@ -99,6 +99,36 @@ def test_calibration_statistics_read_string_ids_as_integer_ids(table):
             np.testing.assert_allclose(np.sort(a[cls][stat]), np.sort(b[cls][stat]))
 
 
+@pytest.mark.slow
+def test_calibrating_to_a_table_with_string_ids_is_calibrating_to_its_integers(
+    table, tmp_path, monkeypatch, capsys
+):
+    """``bgap.calibrate calibrate.target=`` a table whose scenes and vehicles are named by
+    strings: the same scores and statistics as the table of the integers they name."""
+    import json
+
+    monkeypatch.chdir(tmp_path)
+    spread = table.assign(vehicle_id=table.vehicle_id * 7)  # "v14" sorts before "v7" as text
+    found = {}
+    for name, t in (("int", spread), ("str", _as_strings(spread))):
+        t.to_parquet(f"{name}.parquet")
+        args = [f"calibrate.target={name}.parquet", "calibrate.trials=1", "calibrate.rounds=1",
+                "calibrate.episodes=1", "calibrate.duration=5", "calibrate.min_vehicles=4",
+                f"root={name}"]  # fmt: skip
+        status, _, err = command("bgap.calibrate", args, monkeypatch, capsys)
+        assert status == 0, err
+        report = tmp_path / name / "calibration"
+        found[name] = (json.loads((report / "scores.json").read_text()),
+                       pd.read_csv(report / "statistics.csv"))  # fmt: skip
+    ints, strings = (dict(found[n][0], target=None) for n in ("int", "str"))
+    for key, value in ints.items():  # sums in another order may differ in the last bits
+        if isinstance(value, float):
+            assert strings[key] == pytest.approx(value, rel=1e-12), key
+        else:
+            assert strings[key] == value, key
+    pd.testing.assert_frame_equal(found["int"][1], found["str"][1], rtol=1e-12)
+
+
 @pytest.mark.parametrize(
     "change,message",
     [
@@ -111,13 +141,24 @@ def test_calibration_statistics_read_string_ids_as_integer_ids(table):
     ],
     ids=["km/h", "1e9", "reversed clock"],
 )
-def test_velocities_that_do_not_describe_the_positions_are_refused(table, change, message):
+def test_velocities_that_do_not_describe_the_positions_are_refused(
+    table, change, message, tmp_path, monkeypatch, capsys
+):
+    """By the reader, and by the command that replays the table (the issue's case: egos
+    "driving" 41 million m/s), before any folder is made."""
     from bgap.common.tables import load_trajectories
 
     load_trajectories(table)  # the table as recorded reads
     with pytest.raises(TrajectoryError, match=message) as err:
         load_trajectories(change(table))
     assert "\n" not in str(err.value)
+    monkeypatch.chdir(tmp_path)
+    change(table).to_parquet("t.parquet")
+    replay = ["traffic=replay", "traffic.table=t.parquet", "traffic.min_duration=10"]
+    args = ["baselines=[idle]", "backend=vector", *replay, "env.duration=10", "out=o"]
+    status, _, err = command("bgap.evaluate", args, monkeypatch, capsys)
+    assert status == 2 and err.count("\n") == 1 and re.search(message, err), err
+    assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize(
@@ -506,3 +547,21 @@ def test_generated_gym_make_configs_are_honoured_or_refused_in_one_line(top, obs
     used = env.unwrapped.config
     assert all(used[k] == v for k, v in top.items()), (config, used)
     assert all(used["observation"][k] == v for k, v in observation.items())
+
+
+@pytest.mark.slow
+def test_a_dense_model_in_sparse_traffic_is_refused_by_every_command(tmp_path, monkeypatch, capsys):
+    """The issue's case (simulate gave SB3's shape error): a model observing 40 vehicles in
+    traffic observing 5, refused in one line by simulate, as evaluate refuses it."""
+    monkeypatch.chdir(tmp_path)
+    status, _, err = command("bgap.train", ["env=dense", "profile=tiny", "run_dir=run"],
+                             monkeypatch, capsys)  # fmt: skip
+    assert status == 0, err
+    for module, args in (
+        ("bgap.simulate", ["policy=run/model.zip", "env=sparse", "episodes=1", "out=s"]),
+        ("bgap.evaluate", ["models=[run]", "baselines=[]", "env=sparse", "out=e"]),
+    ):
+        status, _, err = command(module, args, monkeypatch, capsys)
+        assert status == 2 and err.count("\n") == 1 and "Traceback" not in err, err
+        assert "40" in err and "5" in err
+        assert not (tmp_path / args[-1][4:]).exists()
