@@ -118,11 +118,20 @@ def test_search_runs_resumes_writes_a_preset_that_loads_everywhere(data, tmp_pat
     }
     for name in ("roc.png", "scores.png", "convergence.png", "config.yaml", "command.txt"):
         assert (out / name).stat().st_size > 0
+    # the saved config is the composed one, with the study's name it resumes by added
+    import yaml
+    from omegaconf import OmegaConf
+
+    saved = yaml.safe_load((out / "config.yaml").read_text())
+    composed = OmegaConf.to_container(dcfg, resolve=True)
+    saved_study, composed_study = saved.pop("study"), composed.pop("study")
+    assert saved == composed and composed_study is None
     # trial 0 is the starting preset: its value is the worst search AUC computed here anew
     import optuna
 
     summary = optuna.get_all_study_summaries(f"sqlite:///{out / 'optuna.db'}")
     assert len(summary) == 1 and summary[0].n_trials == 3
+    assert summary[0].study_name == saved_study  # the name it resumes by, recorded
     study = optuna.load_study(
         study_name=summary[0].study_name, storage=f"sqlite:///{out}/optuna.db"
     )

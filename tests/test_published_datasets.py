@@ -148,6 +148,16 @@ def test_command_converts_a_highd_folder_and_needs_a_path(tmp_path):
     assert done.returncode == 0, done.stderr
     written = pd.read_parquet(tmp_path / "out" / "trajectories.parquet")
     assert len(written) == 20 and written.episode.nunique() == 2
+    import yaml
+    from omegaconf import OmegaConf
+
+    from bgap.common.config import compose
+    from bgap.datasets.config import SCHEMAS
+
+    composed = compose("datasets", ["source=highd", f"path={tmp_path}", f"out={tmp_path / 'out'}"],
+                       SCHEMAS)  # fmt: skip
+    saved = yaml.safe_load((tmp_path / "out" / "config.yaml").read_text())
+    assert saved == OmegaConf.to_container(composed, resolve=True)  # the config it used
     assert "2 scenes" in done.stdout
     bad = datasets("ngsim", f"out={tmp_path / 'bad'}")
     assert bad.returncode == 2 and "path=None is invalid" in bad.stderr

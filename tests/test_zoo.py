@@ -413,6 +413,7 @@ def test_a_model_on_the_paper_grid_says_which_cells_it_skips_and_folders_never_c
         )
         assert status == 0, err
         assert "plays only the cells of its own density (sparse): 21 cells of dense skipped" in out
+        assert " 63/63 " in err  # the progress counts the episodes played: 21 + 2 x 21 idle
         outs.append(next(line for line in out.splitlines() if line.startswith("results in")))
     assert outs[0] != outs[1]
     episodes = pd.read_parquet(Path(outs[1].split()[-1]) / "episodes.parquet")
