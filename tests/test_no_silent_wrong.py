@@ -400,6 +400,9 @@ SAVED = {  # command, its config, arguments, the folder its config.yaml is in
                   "env.duration=4", "trials=1", "episodes=1", "out=o", "preset=p.yaml"], "o"),
     "cmetric": ("bgap.cmetric.__main__", "cmetric_app", ["input=t.csv", "out=o/", "fps=5"], "o"),
     "run": ("bgap.run", "run", ["profile=tiny", "mix=0.7", "root=o"], "o/results/*"),
+    "recipe": ("bgap.recipe", "recipe", ["profile=tiny", "profile.eval_every_episodes=3",
+               "trials=2", "candidates=1", "check_seeds=[0,1]", "check_episodes=10",
+               "sweep_eval_episodes=2", "root=o"], "o/recipe"),
     "train": ("bgap.train", "train", ["profile=tiny", "policy=default", "mix=0.8",
               "run_dir=o"], "o"),
 }  # fmt: skip
@@ -437,7 +440,7 @@ def test_the_saved_config_is_the_config_the_command_used(name, tmp_path, monkeyp
     status, _, err = command(module, args, monkeypatch, capsys)
     assert status == 0, err
     schemas = {"calibrate": CALIBRATE, "tune_rule": TUNE_RULE, "cmetric_app": CMETRIC,
-               "train": EXPERIMENTS, "run": EXPERIMENTS}[config]  # fmt: skip
+               "train": EXPERIMENTS, "run": EXPERIMENTS, "recipe": EXPERIMENTS}[config]  # fmt: skip
     expected = OmegaConf.to_container(plumbing.compose(config, args, schemas), resolve=True)
     (saved,) = tmp_path.glob(f"{folder}/config.yaml")  # the results of bgap.run: one folder
     saved = yaml.safe_load(saved.read_text())
