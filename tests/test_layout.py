@@ -61,6 +61,7 @@ def test_bgap_alone_lists_every_command_and_an_unknown_one_is_refused():
         [sys.executable, "-m", "bgap", "trian"], cwd=ROOT, capture_output=True, text=True
     )
     assert bad.returncode == 2 and "unknown command 'trian'" in bad.stderr
+    assert bad.stderr.count("\n") == 1, bad.stderr  # one line, no usage dump
 
 
 def test_bgap_command_runs_the_same_program_as_python_m():

@@ -109,6 +109,7 @@ def test_log_mode_runs_into_a_braking_ego_and_reactive_mode_brakes(tmp_path):
         ),
         (lambda t: t[t.vehicle_id == 1], "one vehicle"),
         (lambda t: t[t.frame < 30], "stays 5 s"),
+        (lambda t: t.assign(x=-t.x, vx=-t.vx), "drive towards -x"),
     ],
 )
 def test_tables_no_episode_can_come_from_are_refused_in_one_line(tmp_path, edit, message):
@@ -118,6 +119,19 @@ def test_tables_no_episode_can_come_from_are_refused_in_one_line(tmp_path, edit,
     with pytest.raises(TrajectoryError, match=message) as err:
         Replay(path, 15, 5.0)
     assert "\n" not in str(err.value)
+
+
+def test_recording_replayed_traffic_is_refused_by_the_library_too(tmp_path):
+    """The command refuses it with its config; a script building the vector backend with
+    ``record=True`` meets the same refusal, not a half-recorded table."""
+    from bgap.common.errors import ConfigError
+    from bgap.sim.vector import VectorHighway
+
+    path = tmp_path / "t.parquet"
+    _follower_table(path)
+    config = _replaying(env_config(make_cfg("env=sparse", "env.duration=30")), path)
+    with pytest.raises(ConfigError, match="recording replayed traffic is not supported"):
+        VectorHighway(config, 1, record=True)
 
 
 @pytest.mark.parametrize(
