@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import pandas as pd
 import pytest
+import yaml
 
 from bgap.analysis.episodes import arm_algo, arm_name, learner_arm
 from bgap.analysis.stats import policy_score as score
@@ -89,5 +90,10 @@ def test_a_tiny_selection_keeps_each_groups_best_run_for_evaluation(tmp_path):
     specs = policy_specs(replace(cfgs[0], models=[str(out)], baselines=[]))
     assert list(specs) == [f"kept/sparse/{copy.name}"]
     assert pd.read_csv(tables / "selection.csv").kept.sum() == 1
+    # both folders record the settings the selection used (select has no composed config)
+    used = {"runs": str(tmp_path / "runs"), "group": 2, "episodes": 4, "out": str(out),
+            "table": str(tables)}  # fmt: skip
+    for folder in (out, tables):
+        assert yaml.safe_load((folder / "config.yaml").read_text()) == used
     with pytest.raises(ConfigError, match="holds an earlier selection"):
         select(tmp_path / "runs", out, tables, k=2, episodes=4)
