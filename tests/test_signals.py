@@ -21,13 +21,15 @@ EVALUATE = ["-m", "bgap.evaluate", "baselines=[idle,rule]", "grid=tiny", "backen
 
 
 def _start(tmp_path) -> subprocess.Popen:
-    """The command in a session of its own, as a terminal's foreground job is."""
+    """The command in a session of its own, as a terminal's foreground job is, and hearing
+    Ctrl-C as one does (pytest-xdist's workers ignore SIGINT, and a child inherits that)."""
     return subprocess.Popen(
         [sys.executable, *EVALUATE, f"out={tmp_path / 'out'}"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
 
 
