@@ -14,7 +14,7 @@ import yaml
 from tests.pipeline_repo import run
 from tools.relock import replay_cells
 
-STAGES = {"calibrate", "recipe", "train", "replay_data", "evaluate", "evaluate_baselines",
+STAGES = {"calibrate", "recipe", "train", "zoo", "replay_data", "evaluate", "evaluate_baselines",
           "figures"}  # fmt: skip
 
 
@@ -23,14 +23,16 @@ def _tiny(params: dict) -> None:
     # the study in miniature: the main arm (the other arms are the same stages with other
     # parameters; several arms' figures and claims: tests/test_figures.py), sparse only, one
     # seed;
-    # periodic validations so that each training selects a checkpoint
-    validate = " profile.eval_every_episodes=2 profile.eval_during_training=4"
+    # periodic validations so that each training selects a checkpoint by the study's rule
+    validate = " profile.eval_every_episodes=2"
+    params["validation_episodes"] = 4
     params["study"] = {
         key: {**value, "seeds": "[0]", "settings": value["settings"] + validate}
         for key, value in params["study"].items()
         if key == "main-sparse"
     }
     params["arms"] = ["main"]
+    params["zoo"] = {"main-sparse": params["zoo"]["main-sparse"]}
     params["calibrate"]["trials"] = 2
     params["recipe"].update(profile="tiny", trials=2, candidates=1, check_episodes=10)
     params["recipe"]["check_seeds"] = "[0,1]"  # the fewest the check accepts

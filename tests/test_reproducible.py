@@ -13,10 +13,18 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-RERUNNING: set[str] = set()
-"""Stages whose committed lock predates code that changes what they compute, being rerun,
-or not run yet: issue 32's recipe per learner and its learner arms. Each must still be
-stale (a rerun stage leaves this set in the same commit); no other stage may be."""
+_ARMS = ["main", "authors", "mix0", "mix50", "mix100"]
+_LEARNERS = ["learner-dqn", "learner-qrdqn", "learner-ppo"]
+RERUNNING: set[str] = (
+    {f"train@{a}-{d}" for a in _ARMS for d in ("sparse", "dense")}
+    | {f"train_learner@{a}-{d}" for a in _LEARNERS for d in ("sparse", "dense")}
+    | {f"zoo@{a}-{d}" for a in _ARMS + _LEARNERS for d in ("sparse", "dense")} - {"zoo@main-sparse"}
+    | {f"evaluate@{a}" for a in _ARMS + _LEARNERS}
+)
+"""Stages whose committed lock predates a change to what they compute, being rerun, or not
+run yet: the study retrained with the per-kilometre checkpoint rule on 100 validation
+episodes, each stage's policies exported to the zoo and evaluated from it. Each must still
+be stale (a rerun stage leaves this set in the same commit); no other stage may be."""
 
 
 def test_a_fresh_clone_reports_no_changed_dependency_parameter_or_command(tmp_path):
