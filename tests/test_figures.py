@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -550,3 +551,53 @@ def test_every_claims_interval_agrees_with_its_p_value():
     for r in table.itertuples():
         assert (r.lo > 0 or r.hi < 0) == (r.p < 0.05), r
         assert (r.lo_holm > 0 or r.hi_holm < 0) == (r.p_holm < 0.05), r
+
+
+def _command(command: str, args: list[str], capsys, monkeypatch) -> tuple[int, str]:
+    """``python -m <command> ARGS`` in this process: its exit status and what it printed."""
+    import runpy
+    import sys
+
+    monkeypatch.setattr(sys, "argv", [command, *args])
+    try:
+        runpy.run_module(command, run_name="__main__", alter_sys=True)
+        status = 0
+    except SystemExit as done:
+        status = done.code if isinstance(done.code, int) else int(done.code is not None)
+    out = capsys.readouterr()
+    return status, out.out + out.err
+
+
+def test_figures_refuses_an_arm_that_replayed_another_table(tmp_path, capsys, monkeypatch):
+    """``bgap.evaluate`` records each cell's traffic inputs (content hashes); two evaluations
+    of the same table are compared cell by cell and pass, and an arm whose table has other
+    bytes at the same path (a rehearsal's) is refused in one line that names its stage and
+    the input, before anything is written."""
+    from bgap.analysis.inputs import check_inputs
+    from bgap.common.errors import ConfigError
+    from tests.test_replay import _follower_table
+
+    table = tmp_path / "t.parquet"
+    recorded = _follower_table(table)
+    root = tmp_path / "results" / "evaluation"
+    args = ["env=sparse", "env.duration=6", "grid.simulated=false", "grid.modes=[log]",
+            f"grid.replays=[sparse:{table}]", "traffic.min_duration=5", "backend=vector",
+            "profile.eval_episodes=2", "baselines=[idle]"]  # fmt: skip
+    for arm in ("baselines", "main"):
+        status, out = _command("bgap.evaluate", [*args, f"out={root / arm / 'replay'}"],
+                               capsys, monkeypatch)  # fmt: skip
+        assert status == 0, out[-2000:]
+    inputs = json.loads((root / "main" / "replay" / "inputs.json").read_text())
+    assert list(inputs) == ["sparse, mix 0, radius 180, replay t/log"]
+    assert check_inputs([root]) == 1
+    recorded.assign(x=recorded.x + 5.0).to_parquet(table)  # another table, the same path
+    status, out = _command("bgap.evaluate", [*args, f"out={root / 'rehearsed' / 'replay'}"],
+                           capsys, monkeypatch)  # fmt: skip
+    assert status == 0, out[-2000:]
+    with pytest.raises(ConfigError, match="evaluate@rehearsed and evaluate_baselines") as err:
+        check_inputs([root])
+    assert "their replay table differs" in str(err.value)
+    status, out = _command("bgap.figures", [str(root), "--out", str(tmp_path / "page")],
+                           capsys, monkeypatch)  # fmt: skip
+    assert status == 2 and "replay table differs" in out and "Traceback" not in out
+    assert not (tmp_path / "page").exists()

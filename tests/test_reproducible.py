@@ -18,12 +18,14 @@ _LEARNERS = ["learner-dqn", "learner-qrdqn", "learner-ppo"]
 RERUNNING: set[str] = (
     {f"train@{a}-{d}" for a in _ARMS for d in ("sparse", "dense")}
     | {f"train_learner@{a}-{d}" for a in _LEARNERS for d in ("sparse", "dense")}
-    | {f"zoo@{a}-{d}" for a in _ARMS + _LEARNERS for d in ("sparse", "dense")} - {"zoo@main-sparse"}
+    | {f"zoo@{a}-{d}" for a in _ARMS + _LEARNERS for d in ("sparse", "dense")}
     | {f"evaluate@{a}" for a in _ARMS + _LEARNERS}
+    | {"evaluate_baselines"}
 )
 """Stages whose committed lock predates a change to what they compute, being rerun, or not
 run yet: the study retrained with the per-kilometre checkpoint rule on 100 validation
-episodes, each stage's policies exported to the zoo and evaluated from it. Each must still
+episodes, each stage's policies exported to the zoo and evaluated from it, every
+evaluation recording its traffic inputs (the baselines' too). Each must still
 be stale (a rerun stage leaves this set in the same commit); no other stage may be."""
 
 

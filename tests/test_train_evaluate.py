@@ -585,6 +585,11 @@ def test_a_training_under_the_per_km_rule_keeps_every_validation_and_the_one_it_
     assert json.loads((run / "best.json").read_text())["episodes"] == chosen
     best = (run / "best_model.zip").read_bytes()
     assert best == (run / f"validations/episode-{chosen:07d}.zip").read_bytes()
+    from bgap.experiments.evaluate_policies import run_records
+
+    record = run_records(run / "best_model.zip")  # models.csv's row: rule, block, choice
+    assert record["checkpoint_rule"] == "per_km" and record["chosen_episodes"] == chosen
+    assert record["validation_seeds"] == f"{CHECKPOINT_SEED}-{CHECKPOINT_SEED + 2}"
 
 
 def test_a_kill_while_the_first_checkpoints_state_is_written_leaves_none(tmp_path, monkeypatch):

@@ -112,9 +112,10 @@ def n_of(density: str) -> int | str:
 
 
 # ---------------------------------------------------------------------- episodes
-EPISODES, MODELS = "episodes.parquet", "models.csv"
+EPISODES, MODELS, INPUTS = "episodes.parquet", "models.csv", "inputs.json"
 """What ``bgap.evaluate`` writes into an evaluation folder: the per-episode table (zstd
-parquet) and one row per evaluated model (its checkpoint choice and settings)."""
+parquet), one row per evaluated model (its checkpoint choice and settings) and the content
+hashes of every cell's traffic inputs (``cell -> input -> sha256``)."""
 EPISODE_FILES = (EPISODES, "episodes.csv")
 """An evaluation folder's episodes (the csv: evaluations before the parquet)."""
 

@@ -7,16 +7,21 @@ an arm evaluated on other tables (a rehearsal's, whose windows are shorter) woul
 compared silently. :func:`mismatched_traffic` finds such cells from the episodes
 themselves, against the baselines' (the rule-based ego and idle, evaluated once for every
 arm); :func:`drop_mismatched` leaves them out of every table, and the results page names
-them.
+them. Evaluations that recorded their inputs (``inputs.json``: per cell, content hashes of
+the replayed table, behaviour preset, episode seeds and environment) are held to more:
+:func:`check_inputs` refuses any cell whose inputs differ between two folders.
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import NamedTuple
 
 import pandas as pd
 
-from bgap.analysis.episodes import REPLAY
+from bgap.analysis.episodes import INPUTS, REPLAY, evaluation_folders, traffic_of
+from bgap.common.errors import ConfigError
 
 
 class Mismatch(NamedTuple):
@@ -86,3 +91,45 @@ def _other_windows(mine: pd.DataFrame, ref: pd.DataFrame) -> str:
     return (f"{int(bad.sum())} of its {len(joined)} episodes do not fit the baselines' "
             f"windows (seed {int(first.seed)}: {int(first.steps)} steps, the window "
             f"{int(first.window)})")  # fmt: skip
+
+
+def stage_of(folder: Path) -> str:
+    """The pipeline stage that writes evaluation folder ``folder``
+    (``results/evaluation/<arm>/<traffic>``), else the folder itself."""
+    parts = folder.parts
+    if len(parts) >= 3 and parts[-3] == "evaluation":
+        arm = parts[-2]
+        return "evaluate_baselines" if arm == "baselines" else f"evaluate@{arm}"
+    return str(folder)
+
+
+def check_inputs(sources: list[str | Path], stock: list[str | Path] = ()) -> int:
+    """Refuse (:class:`ConfigError`) two evaluation folders whose recorded inputs of one
+    cell differ, naming both stages, the cell and the input; folders read as stock traffic
+    (``stock``) are compared with stock traffic only. Returns how many cells were compared
+    across folders."""
+    seen: dict[tuple[str, str], tuple[Path, dict[str, str]]] = {}
+    compared = 0
+    forced = [(s, None) for s in sources] + [(s, "stock") for s in stock]
+    for source, traffic in forced:
+        for folder in evaluation_folders(source):
+            if not (folder / INPUTS).exists():
+                continue  # an evaluation from before the inputs were recorded
+            kind = traffic or traffic_of(folder)
+            for cell, parts in json.loads((folder / INPUTS).read_text()).items():
+                first = seen.setdefault((kind, cell), (folder, parts))
+                if first[0] == folder:
+                    continue
+                compared += 1
+                # the named inputs first: "environment" (the whole config) differs with any
+                differ = sorted(
+                    (k for k, v in parts.items() if first[1].get(k, v) != v),
+                    key=lambda k: (k == "environment", k),
+                )
+                if differ:
+                    raise ConfigError(
+                        f"{stage_of(folder)} and {stage_of(first[0])} played other traffic "
+                        f"in the cell {cell} ({kind}): their {differ[0]} differs; rerun the "
+                        "stage that read an outdated input before comparing them"
+                    )
+    return compared

@@ -19,7 +19,7 @@ from bgap.analysis.episodes import (
     mixture_arms,
     n_of,
 )
-from bgap.analysis.inputs import drop_mismatched, mismatched_traffic
+from bgap.analysis.inputs import check_inputs, drop_mismatched, mismatched_traffic
 from bgap.analysis.page import readme
 from bgap.analysis.paper import PAPER_CRASHES
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN, keeps_up, versus_rule
@@ -325,6 +325,7 @@ def make_figures(
     """The results page, its tables and figures in ``out`` from the evaluations under
     ``sources`` (and ``stock``, read as stock traffic): :func:`load_evaluations`."""
     out = Path(out)
+    check_inputs(list(sources), list(stock))  # before anything is written
     df, models = load_evaluations(list(sources), list(stock))
     left_out = mismatched_traffic(df)  # compared with nothing: other traffic than the baselines'
     df = drop_mismatched(df, left_out)

@@ -47,6 +47,7 @@ from bgap.experiments.evaluate_results import (
     format_table,
     plot_comparison,
     summarize,
+    traffic_inputs,
     write_results,
 )
 from bgap.runner.cluster import connected
@@ -76,6 +77,12 @@ class Cell:
         path = Path(self.table)
         name = path.parent.name if path.stem == "trajectories" else path.stem
         return f"{name}/{self.mode}"
+
+    @property
+    def key(self) -> str:
+        """The cell's name in ``inputs.json``."""
+        where = f"{self.density}, mix {self.mix:g}, radius {self.radius:g}"
+        return where + (f", replay {self.replay}" if self.table else "")
 
 
 def grid_cells(cfg: ExperimentConfig) -> list[Cell]:
@@ -312,9 +319,14 @@ def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
         )
     with exclusive(out):  # a second evaluation into the same folder is refused
         save_run_metadata(out, dcfg)
-        episodes = compact(evaluate(cfg, specs))  # what is stored is what is summarised
+        cells = grid_cells(cfg)
+        episodes = compact(evaluate(cfg, specs, cells))  # what is stored is what is summarised
         summary = summarize(episodes)
-        write_results(out, episodes, summary)
+        seeds = [cfg.eval_seed + k for k in range(cfg.profile.eval_episodes)]
+        configs = [cell_env_config(cfg, cell) for cell in cells]
+        inputs = traffic_inputs([c.key for c in cells], configs, [c.table for c in cells],
+                                seeds, asdict(cfg.behavior))  # fmt: skip
+        write_results(out, episodes, summary, inputs)
         models = model_records(specs)
         if len(models):
             write_atomic(out / MODELS, lambda tmp: models.to_csv(tmp, index=False))

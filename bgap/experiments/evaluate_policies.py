@@ -16,7 +16,7 @@ from bgap.common.errors import ConfigError
 from bgap.common.runs import CONFIG, MODEL, model_file, run_folders
 from bgap.common.tables import read_table
 from bgap.common.vocab import BASELINES
-from bgap.experiments.config import ExperimentConfig
+from bgap.experiments.config import CHECKPOINT_SEED, ExperimentConfig
 
 
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
@@ -96,6 +96,18 @@ def run_records(model: Path) -> dict[str, Any]:
         }
     if (run / CONFIG).exists():
         settings = OmegaConf.to_container(OmegaConf.load(run / CONFIG), resolve=True)
+        rule, first, n = validation_block(settings)
+        row |= {"checkpoint_rule": rule, "validation_seeds": f"{first}-{first + n - 1}"}
         kept = {g: settings.get(g) for g in ("reward", "agent", "profile")}
         row["settings"] = json.dumps(kept, sort_keys=True)
     return row
+
+
+def validation_block(settings: dict[str, Any]) -> tuple[str, int, int]:
+    """A training's checkpoint rule and the seeds its validations played (first, count),
+    from its saved settings (run folders from before the rule was a setting chose by
+    return)."""
+    profile = settings["profile"]
+    rule = profile.get("checkpoint_rule", "return")
+    first = CHECKPOINT_SEED if rule == "per_km" else int(settings["val_seed"])
+    return rule, first, int(profile["eval_during_training"])

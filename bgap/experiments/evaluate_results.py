@@ -1,16 +1,20 @@
 """What an evaluation makes of its episodes: their stored types, the summary per policy
 and cell (collision %, speed, lane changes, crash kinds, collisions per 100 km, with 95%
-intervals), the files written, the text table and the comparison figure."""
+intervals), the traffic inputs each cell met, the files written, the text table and the
+comparison figure."""
 
 from __future__ import annotations
 
+import copy
+import hashlib
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from bgap.analysis.episodes import EPISODES
+from bgap.analysis.episodes import EPISODES, INPUTS
 from bgap.analysis.stats import per_100km, spread_interval, wilson_interval
 from bgap.common.plotting import pyplot
 from bgap.common.runs import write_atomic
@@ -83,8 +87,47 @@ def crash_split(episodes: pd.DataFrame) -> dict[str, float]:
     return {f"{kind}_pct": 100.0 * float(share.get(kind, 0.0)) for kind in CRASH_KINDS}
 
 
-def write_results(out: Path, episodes: pd.DataFrame, summary: pd.DataFrame) -> None:
+def _hash(values: Any) -> str:
+    return hashlib.sha256(json.dumps(values, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def file_hash(path: str | Path) -> str:
+    """sha256 of a file's bytes: a replay table is compared by what it holds, not by its path
+    (a rehearsal writes other tables to the same path)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def traffic_inputs(
+    keys: list[str], configs: list[dict], tables: list[str], seeds: list[int], behavior: Any
+) -> dict[str, dict[str, str]]:
+    """Per cell (``keys``, one per cell of ``configs``; ``tables``: each cell's replay table
+    or ""), content hashes of what decides the traffic its episodes meet: the episode seeds,
+    the behaviour preset, the replayed table's bytes and the whole environment config (the
+    table's path replaced by its hash). ``bgap.figures`` compares arms cell by cell on them."""
+    by_table: dict[str, str] = {}
+    inputs = {}
+    for key, config, table in zip(keys, configs, tables, strict=True):
+        parts = {"episode seeds": _hash(seeds), "behaviour preset": _hash(behavior)}
+        if table:
+            by_table.setdefault(table, file_hash(table))
+            parts["replay table"] = by_table[table]
+            config = copy.deepcopy(config)
+            config["traffic"]["table"] = by_table[table]
+        parts["environment"] = _hash(config)
+        inputs[key] = parts
+    return inputs
+
+
+def write_results(
+    out: Path, episodes: pd.DataFrame, summary: pd.DataFrame, inputs: dict | None = None
+) -> None:
     out.mkdir(parents=True, exist_ok=True)
+    if inputs is not None:
+        write_atomic(out / INPUTS, json.dumps(inputs, indent=1, sort_keys=True))
     write_atomic(
         out / EPISODES,
         lambda tmp: episodes.to_parquet(tmp, index=False, compression="zstd", compression_level=19),

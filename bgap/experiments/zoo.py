@@ -25,8 +25,8 @@ from bgap.common.errors import ConfigError, check
 from bgap.common.runs import CONFIG, MODEL, model_file, run_folders, write_atomic
 from bgap.common.tables import read_table
 from bgap.common.vocab import SPEED_FLOOR
-from bgap.experiments.config import CHECKPOINT_SEED, CHECKPOINTS
-from bgap.experiments.evaluate_policies import run_records
+from bgap.experiments.config import CHECKPOINTS
+from bgap.experiments.evaluate_policies import run_records, validation_block
 from bgap.runner.locks import exclusive
 
 
@@ -120,17 +120,16 @@ def card_of(run: Path, arm: str, checkpoint: str) -> dict[str, Any]:
 
 def _rule(cfg: dict[str, Any]) -> str:
     """How the run chose its checkpoint, with the validation episodes' seeds."""
-    profile = cfg["profile"]
-    per_km = profile.get("checkpoint_rule", "return") == "per_km"
-    first, n = (CHECKPOINT_SEED if per_km else cfg["val_seed"]), profile["eval_during_training"]
+    rule, first, n = validation_block(cfg)
     how = (
         f"the fewest collisions per 100 km at {SPEED_FLOOR} x idle's speed or more (ties: the "
         "faster)"
-        if per_km
+        if rule == "per_km"
         else "the highest mean return"
     )
+    every = cfg["profile"]["eval_every_episodes"]
     return (f"{how} on {n} validation episodes (seeds {first}-{first + n - 1}), validated "
-            f"every {profile['eval_every_episodes']} training episodes")  # fmt: skip
+            f"every {every} training episodes")  # fmt: skip
 
 
 def export(run: Path, arm: str, out: Path, checkpoint: str = "best") -> Path:
