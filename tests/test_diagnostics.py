@@ -10,11 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bgap.common.vocab import IDLE, LANE_LEFT, LANE_WIDTH
 from bgap.envs import make_env
 from bgap.sim.highway_scenes import scene_from_highway
 from bgap.sim.rollout import EpisodeStats
 from bgap.sim.vector import VectorHighway
+from bgap.traffic.road import IDLE, LANE_LEFT, LANE_WIDTH
 from bgap.traffic.scenario import contact_dx, env_config
 from tests.conftest import make_cfg
 

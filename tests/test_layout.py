@@ -34,6 +34,18 @@ def test_import_bgap_registers_the_environment_and_loads_no_simulator_learner_or
     assert done.stdout.strip() == "bgap.envs.highway"
 
 
+def test_cmetric_and_the_vocabulary_load_no_simulator():
+    """CMetric knows no simulator: its command's modules and the shared vocabulary import
+    neither highway-env nor bgap's simulators (the road's constants are bgap.traffic.road's)."""
+    done = _python(
+        "import sys, bgap.common.vocab, bgap.cmetric.boundary, bgap.cmetric.score;"
+        "print([m for m in ('highway_env', 'bgap.sim', 'bgap.envs', 'bgap.traffic.road')"
+        " if m in sys.modules])"
+    )
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+
+
 def test_gymnasium_module_prefixed_id_works_without_an_import():
     done = _python(
         "import gymnasium as gym; env = gym.make('bgap:bgap/BehaviorHighway-v0');"

@@ -335,6 +335,13 @@ def test_a_file_where_the_output_folder_goes_and_a_full_disk_are_one_line(
         assert status == 2 and err.count("\n") == 1 and line.replace("o/", f"o{code}/") in err
         assert "Traceback" not in err and "run the same command again" in err, err
 
+    from bgap.common.cli import machine_fault  # an error that names no file says none
+
+    assert machine_fault(OSError(errno.ENOSPC, "full")).startswith(
+        "no space left on the device: free some, and run the same command again"
+    )
+    assert machine_fault(OSError(errno.EROFS, "ro")).startswith("the output is on a read-only")
+
     def broken(path, data):  # not a fault of the machine's: a bug keeps its traceback
         raise OSError(errno.EIO, "Input/output error", str(path))
 

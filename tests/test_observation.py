@@ -11,9 +11,9 @@ from bgap.agents.observation import TTC_HORIZON, ObservationFeatures, WithFeatur
 from bgap.agents.rule_based import rule_based
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
-from bgap.common.vocab import N_ACTIONS
 from bgap.sim import core
 from bgap.sim.vector import VectorHighway
+from bgap.traffic.road import N_ACTIONS
 from bgap.traffic.scenario import env_config
 from tests.configs import compose
 from tests.conftest import make_cfg

@@ -9,8 +9,8 @@ import pytest
 
 from bgap.agents.policies import rollout
 from bgap.common.errors import TrajectoryError
-from bgap.common.vocab import IDLE, SLOWER
 from bgap.traffic.replay import Replay
+from bgap.traffic.road import IDLE, SLOWER
 from bgap.traffic.scenario import env_config
 from tests.conftest import make_cfg
 

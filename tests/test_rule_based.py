@@ -7,7 +7,7 @@ import pytest
 
 from bgap.agents.policies import rollout
 from bgap.agents.rule_based import DEFAULT, RuleBasedEgo, RuleParams, TunedRule, idm
-from bgap.common.vocab import FASTER, IDLE, LANE_LEFT, LANE_RIGHT, SLOWER
+from bgap.traffic.road import FASTER, IDLE, LANE_LEFT, LANE_RIGHT, SLOWER
 from bgap.traffic.scenario import env_config
 from tests.conftest import make_cfg
 from tests.test_diagnostics import _scene

@@ -10,12 +10,12 @@ import pytest
 import yaml
 from highway_env.vehicle.behavior import IDMVehicle
 
-from bgap.common.vocab import IDLE
 from bgap.envs import make_env
 from bgap.sim import core
 from bgap.sim.highway_scenes import scene_from_highway
 from bgap.sim.vector import VectorHighway
 from bgap.traffic.behaviors import BehaviorVehicle
+from bgap.traffic.road import IDLE
 from bgap.traffic.scenario import env_config, fast_mode
 from tests.conftest import make_cfg
 
@@ -156,7 +156,7 @@ def test_initial_scenes_have_highway_envs_distribution():
 def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) -> None:
     """The scene draw as numpy code (VectorHighway._spawn before it was compiled), the
     reference core.spawn must reproduce draw for draw."""
-    from bgap.sim.highway_params import _COLUMNS, IDM_DEFAULTS, _column_value
+    from bgap.sim.highway_params import IDM_DEFAULTS, PARAM_COLUMNS, column_value
     from bgap.traffic.behaviors import DRIVER_ATTRIBUTES, is_stock
 
     cfg, lanes, n = venv.config, venv.lanes, venv.n
@@ -193,7 +193,7 @@ def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) 
         p[rows, core.P_DELTA] = deltas[rows - 1]
         for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
             if params.get(key) is not None:
-                p[rows, _COLUMNS[attr]] = _column_value(attr, float(convert(params[key])))
+                p[rows, PARAM_COLUMNS[attr]] = column_value(attr, float(convert(params[key])))
         if params.get("v0") is not None:
             s = float(params.get("v0_spread") or 0.0)
             f[rows, core.TARGET_SPEED] = float(params["v0"]) * rng.uniform(1 - s, 1 + s, rows.size)

@@ -48,7 +48,7 @@ from torch.optim.adam import adam
 
 from bgap.agents.config import AgentConfig
 from bgap.agents.per import SumTrees, check_replay_memory
-from bgap.agents.stacked_qnets import _stacking_layout, default_device, initial_parameters, q_values
+from bgap.agents.stacked_qnets import default_device, initial_parameters, q_values, stacking_layout
 from bgap.common.errors import check
 
 
@@ -271,7 +271,7 @@ class BatchedDQN:
         self.k, self.n_envs, self.n_actions = len(seeds), schedule.n_envs, n_actions
         self.device = torch.device(device) if device is not None else default_device()
         sizes = [obs_dim, *agent.net_arch, n_actions]
-        members = [_stacking_layout(initial_parameters(s, sizes)) for s in seeds]
+        members = [stacking_layout(initial_parameters(s, sizes)) for s in seeds]
         self.params = [torch.stack(ts).to(self.device) for ts in zip(*members, strict=True)]
         self.target = [p.clone() for p in self.params]
         self.optimizer = StackedAdam(self.params, agent.learning_rate)
@@ -422,7 +422,7 @@ class BatchedDQN:
     def member_network(self, k: int, target: bool = False) -> dict[str, torch.Tensor]:
         """Member k's Q-network as SB3's ``q_net`` state dict (``q_net.{2i}.weight``, ...)."""
         source = self.target if target else self.params
-        tensors = _stacking_layout([t[k].detach().cpu() for t in source])  # its own inverse
+        tensors = stacking_layout([t[k].detach().cpu() for t in source])  # its own inverse
         out = {}
         for i in range(len(tensors) // 2):
             out[f"q_net.{2 * i}.weight"] = tensors[2 * i].contiguous()

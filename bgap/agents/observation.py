@@ -41,7 +41,7 @@ from gymnasium import spaces
 
 from bgap.agents.config import OBSERVATION_OPTIONS, observation_options
 from bgap.agents.rule_based import V_RANGE, X_RANGE, rule_based
-from bgap.common.vocab import LANE_WIDTH, N_ACTIONS, VEHICLE_LENGTH, VEHICLE_WIDTH
+from bgap.traffic.road import LANE_WIDTH, N_ACTIONS, VEHICLE_LENGTH, VEHICLE_WIDTH
 
 TTC_HORIZON = 10.0
 """[s] Times to collision at or beyond it read 1 (highway-env's TimeToCollision horizon)."""

@@ -24,9 +24,10 @@ from bgap.agents.observation import ObservationFeatures, model_features
 from bgap.agents.rule_based import DEFAULT, rule_based, tuned
 from bgap.common.errors import ConfigError
 from bgap.common.runs import read_or_refuse
-from bgap.common.vocab import BASELINES, IDLE, LANE_LEFT, N_ACTIONS
+from bgap.common.vocab import BASELINES
 from bgap.sim import rollout as sim_rollout
 from bgap.sim.rollout import Policy, Rollout, as_callable, greedy
+from bgap.traffic.road import IDLE, LANE_LEFT, N_ACTIONS
 
 __all__ = ["as_policy", "baseline", "check_rows", "greedy", "load_model", "model_path", "rollout"]
 

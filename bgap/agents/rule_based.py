@@ -32,7 +32,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.common.errors import ConfigError
 from bgap.common.presets import load_preset, preset_path
-from bgap.common.vocab import EGO_MAX_SPEED, FASTER, IDLE, LANE_LEFT, LANE_RIGHT, LANE_WIDTH, SLOWER
+from bgap.traffic.road import EGO_MAX_SPEED, FASTER, IDLE, LANE_LEFT, LANE_RIGHT, LANE_WIDTH, SLOWER
 
 # highway-env's normalisation of the Kinematics observation (KinematicObservation.normalize_obs)
 X_RANGE, V_RANGE = 5.0 * EGO_MAX_SPEED, 2.0 * EGO_MAX_SPEED

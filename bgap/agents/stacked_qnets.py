@@ -22,7 +22,7 @@ def initial_parameters(seed: int, sizes: list[int]) -> list[torch.Tensor]:
     return [t.detach().clone() for layer in layers for t in (layer.weight, layer.bias)]
 
 
-def _stacking_layout(tensors: list[torch.Tensor]) -> list[torch.Tensor]:
+def stacking_layout(tensors: list[torch.Tensor]) -> list[torch.Tensor]:
     """nn.Linear's [W (out, in), b, ...] <-> the learner's [W (in, out), b, ...]."""
     return [t.t() if t.dim() == 2 else t for t in tensors]
 

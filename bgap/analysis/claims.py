@@ -11,7 +11,7 @@ from scipy.special import ndtri
 
 from bgap.analysis.episodes import (
     ALPHA,
-    _distinct,
+    distinct_cells,
     is_replay,
     mixture_arms,
     n_of,
@@ -147,7 +147,7 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
     Holm's correction within each family (:func:`family_of`): adding or removing an arm
     changes no other family's verdicts. Verdicts need at least :data:`MIN_SEEDS` training
     seeds per side."""
-    grid = _distinct(df[df.traffic == "paper"])
+    grid = distinct_cells(df[df.traffic == "paper"])
     rows = []
     for arm in mixture_arms(grid.arm):
         trained = grid[grid.arm == arm]
@@ -204,7 +204,7 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
     trained on the mixture (main arm), collision %: over all test mixes, and at the arm's own
     mix. Unrelated trainings, so unpaired; exploratory (no correction), for the question
     whether the mixture or the mix matters."""
-    grid = _distinct(df[(df.traffic == "paper") & (df.family == "behavior_rich")])
+    grid = distinct_cells(df[(df.traffic == "paper") & (df.family == "behavior_rich")])
     grid = grid[grid.radius == grid.radius.max()] if len(grid) else grid
     rows = []
     for arm in sorted({a for a in set(grid.arm) if a.startswith("mix")}, key=lambda a: int(a[3:])):
@@ -275,7 +275,7 @@ def own_traffic(df: pd.DataFrame) -> pd.DataFrame:
             own, label = {"traffic": "paper", "mix": [mix]}, f"{mix:.0%} aggressive"
         else:
             own, label = {"traffic": "paper"}, "the paper's mixes"
-        sel = _distinct(_select(df[df.density == density], {**own, "radius": r}))
+        sel = distinct_cells(_select(df[df.density == density], {**own, "radius": r}))
         mine, idle = sel[sel.policy.isin(g.policy.unique())], sel[sel.family == "idle"]
         if mine.empty or idle.empty:
             continue

@@ -216,7 +216,7 @@ def duplicates(df: pd.DataFrame) -> dict[tuple[str, float], float]:
     return out
 
 
-def _distinct(df: pd.DataFrame) -> pd.DataFrame:
+def distinct_cells(df: pd.DataFrame) -> pd.DataFrame:
     """Rows of cells that are not duplicates of another mix."""
     dup = duplicates(df)
     keep = [(d, m) not in dup for d, m in zip(df.density, df.mix, strict=True)]

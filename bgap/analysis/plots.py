@@ -12,9 +12,9 @@ import pandas as pd
 from bgap.analysis.claims import claims, own_traffic
 from bgap.analysis.episodes import (
     METRICS,
-    _distinct,
     arm_name,
     cell_stats,
+    distinct_cells,
     load_evaluations,
     mixture_arms,
     n_of,
@@ -224,6 +224,18 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     return True
 
 
+def _point(ax, row: pd.Series, metric: str, **style) -> None:
+    """One policy's point, ``metric`` against speed, with both intervals (``<column>_lo``,
+    ``<column>_hi``) as error bars."""
+
+    def err(column: str) -> list[list[float]]:
+        v = row[column]
+        return [[max(v - row[f"{column}_lo"], 0)], [max(row[f"{column}_hi"] - v, 0)]]
+
+    ax.errorbar(row[metric], row.avg_speed, capsize=3, ls="none", xerr=err(metric),
+                yerr=err("avg_speed"), **style)  # fmt: skip
+
+
 def _yardstick_panel(
     ax, table: pd.DataFrame, family: str, metric: str, xlabel: str, title: str, arms: list[str]
 ) -> None:
@@ -242,28 +254,12 @@ def _yardstick_panel(
         else:
             ok = keeps_up(p[metric], p.avg_speed, rule[metric], rule.avg_speed)
             verdict = "keeps up" if ok else "falls short"
-        ax.errorbar(p[metric], p.avg_speed, capsize=3, ls="none", marker="o", ms=6,
-                    color=f"C{j}", label=f"{arm}: {verdict}",
-                    xerr=[[max(p[metric] - p[f"{metric}_lo"], 0)],
-                          [max(p[f"{metric}_hi"] - p[metric], 0)]],
-                    yerr=[[max(p.avg_speed - p.avg_speed_lo, 0)],
-                          [max(p.avg_speed_hi - p.avg_speed, 0)]])  # fmt: skip
-    ax.errorbar(rule[metric], rule.avg_speed, capsize=3, ls="none", marker="*", ms=13,
-                color="k", label="rule-based ego",
-                xerr=[[max(rule[metric] - rule[f"{metric}_lo"], 0)],
-                      [max(rule[f"{metric}_hi"] - rule[metric], 0)]],
-                yerr=[[max(rule.avg_speed - rule.avg_speed_lo, 0)],
-                      [max(rule.avg_speed_hi - rule.avg_speed, 0)]])  # fmt: skip
+        _point(ax, p, metric, marker="o", ms=6, color=f"C{j}", label=f"{arm}: {verdict}")
+    _point(ax, rule, metric, marker="*", ms=13, color="k", label="rule-based ego")
     for name, marker in (("rule_tuned", "D"), ("idm", "X")):  # the other yardsticks
-        if ("", name) not in table.index:
-            continue
-        y = table.loc[("", name)]
-        ax.errorbar(y[metric], y.avg_speed, capsize=3, ls="none", marker=marker, ms=8,
-                    color="0.35", label=YARDSTICK_NAMES[name],
-                    xerr=[[max(y[metric] - y[f"{metric}_lo"], 0)],
-                          [max(y[f"{metric}_hi"] - y[metric], 0)]],
-                    yerr=[[max(y.avg_speed - y.avg_speed_lo, 0)],
-                          [max(y.avg_speed_hi - y.avg_speed, 0)]])  # fmt: skip
+        if ("", name) in table.index:
+            _point(ax, table.loc[("", name)], metric, marker=marker, ms=8, color="0.35",
+                      label=YARDSTICK_NAMES[name])  # fmt: skip
     top = max(ax.get_ylim()[1], floor + 1)
     rule_text = (
         f"fewer than it, at >= {RULE_FLOOR:g} x its speed"
@@ -342,7 +338,7 @@ def make_figures(
         f"{arm or 'baseline'}/{density}/{family}": {
             m: round(float(g[m].mean()), 3) for m in METRICS
         }
-        for (arm, density, family), g in _distinct(grid).groupby(["arm", "density", "family"])
+        for (arm, density, family), g in distinct_cells(grid).groupby(["arm", "density", "family"])
     }
     write_atomic(out / "metrics.json", json.dumps(headline, indent=1, sort_keys=True))
     paths["table2"] = out / "table2.md"

@@ -13,9 +13,9 @@ from bgap.analysis.episodes import (
     LEARNER_ARM,
     MIXTURE_ARMS,
     REPLAY,
-    _distinct,
     arm_algo,
     arm_name,
+    distinct_cells,
     is_replay,
     n_of,
     policy_parts,
@@ -264,7 +264,7 @@ def pooled_intervals(df: pd.DataFrame, density: str, draws: int = 4000) -> pd.Da
     g = df[df.traffic == "paper"] if "traffic" in df else df
     if "distance" not in g or g.empty:
         return pd.DataFrame(columns=["arm", "family", *cols]).set_index(["arm", "family"])
-    g = _distinct(g)
+    g = distinct_cells(g)
     g = g[(g.radius == g.radius.max()) & (g.density == density)]
     rng = np.random.default_rng(0)
     rows = {}
@@ -427,7 +427,7 @@ def fault_markdown(df: pd.DataFrame) -> str:
     g = df[(df.traffic == "paper")] if "traffic" in df else df
     if "ending" not in g or "steps" not in g or g.empty:
         return "(the evaluations hold no crash endings: evaluate again)\n"
-    g = _distinct(g)
+    g = distinct_cells(g)
     g = g[g.radius == g.radius.max()]
     crashed = g.collision_pct > 0
     g = g.assign(

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from bgap.analysis.episodes import _distinct, n_of
+from bgap.analysis.episodes import distinct_cells, n_of
 from bgap.analysis.intervals import crossed_variance, t_test
 from bgap.analysis.stats import PER_KM, RULE_FLOOR
 from bgap.common.vocab import YARDSTICK_NAMES, YARDSTICKS
@@ -44,7 +44,7 @@ def read_cells(df: pd.DataFrame, density: str) -> pd.DataFrame:
     g = df[(df.traffic == "paper") & (df.density == density)] if len(df) else df
     if g.empty or "distance" not in g:
         return g.iloc[0:0]
-    g = _distinct(g)
+    g = distinct_cells(g)
     return g[g.radius == g.radius.max()]
 
 

@@ -120,17 +120,19 @@ def _as_ctrl_c(signum: int, frame: Any) -> None:
 
 
 FAULTS = {
-    errno.ENOSPC: "no space left on the device writing {file}: free some",
-    errno.EDQUOT: "the disk quota is used up writing {file}: free some",
+    errno.ENOSPC: "no space left on the device{writing}: free some",
+    errno.EDQUOT: "the disk quota is used up{writing}: free some",
     errno.EROFS: "{file} is on a read-only file system: give the output (out=, root=) a "
     "writable folder",
 }
-"""The machine faults a command reports in one line (errno: what happened, and the fix)."""
+"""The machine faults a command reports in one line (errno: what happened, and the fix;
+``{writing}`` names the file where the error does, ``{file}`` is the file or "the output")."""
 
 
 def machine_fault(err: OSError) -> str:
     """The one line for a machine fault (an ``OSError`` whose errno is in :data:`FAULTS`)."""
-    what = FAULTS[err.errno].format(file=err.filename or "its output")
+    writing = f" writing {err.filename}" if err.filename else ""
+    what = FAULTS[err.errno].format(writing=writing, file=err.filename or "the output")
     return (f"{what}, and run the same command again (what was finished is kept or redone, "
             "never half-read)")  # fmt: skip
 

@@ -85,47 +85,15 @@ def run_folders(root: str | Path) -> list[Path]:
     return sorted(p.parent for p in found if not p.parent.name.startswith("checkpoints"))
 
 
-ADDED_LATER = {
-    "learner": "sb3",
-    "threads": 0,
-    "policies": [],
-    "checkpoint": "last",
-    "reward.converged": True,
-    "agent.converged": True,
-    "profile.checkpoint_rule": "return",
-}
-"""Settings added after run folders were first written, with the value those runs used: a
-stored config without the key is read as having it."""
-ADDED_WITH_ALGOS = {
-    "algo": "dqn", "extractor": "flatten", "attention_dim": 64, "attention_heads": 2,
-    "n_quantiles": 25, "n_steps": 128, "n_epochs": 10, "gae_lambda": 0.95,
-    "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5, "observation": [],
-}  # fmt: skip
-"""The ``agent`` settings that came with the algorithms beside DQN and the observation
-options (the learner arms), at the values every earlier training had: read into configs saved
-before them, and left out of a training's identity at these values (its run folder keeps
-its name)."""
-ADDED_LATER |= {f"agent.{k}": v for k, v in ADDED_WITH_ALGOS.items()}
-
-
-def as_before(settings: dict[str, Any]) -> dict[str, Any]:
-    """A config's ``settings`` (``asdict``) without what was added later at the value every
-    earlier config had (the ``agent`` settings of :data:`ADDED_WITH_ALGOS`, simulated
-    ``traffic``), for the names hashed from them: folders and studies named before keep
-    their names."""
-    settings = dict(settings)
-    if isinstance(settings.get("agent"), dict):
-        settings["agent"] = {k: v for k, v in settings["agent"].items()
-                             if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
-    if (settings.get("traffic") or {}).get("source", "simulated") == "simulated":
-        settings.pop("traffic", None)
-    return settings
+Upgrade = Callable[[dict, dict], dict]
+"""Reads a stored config (first argument) saved by an earlier version as the current one's
+schema (second) has it: a command's own history of its settings
+(:func:`bgap.experiments.compat.upgrade`)."""
 
 
 def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATILE) -> list[str]:
     """Dotted keys whose values differ between two config trees, ``ignore``d ones aside."""
     a, b = _flat(stored), _flat(current)
-    a.update({k: v for k, v in ADDED_LATER.items() if k in b and k not in a})
     return sorted(k for k in {*a, *b} if a.get(k) != b.get(k) and k.split(".")[0] not in ignore)
 
 
@@ -149,9 +117,11 @@ def read_or_refuse(read: Callable[[], T], what: str, fix: str) -> T:
         raise ConfigError(f"{what} ({type(err).__name__}: {reason}); {fix}") from None
 
 
-def other_settings(stored_path: Path, current: dict, ignore: tuple[str, ...]) -> str | None:
-    """How the settings saved at ``stored_path`` differ from ``current`` (the first keys,
-    with both values), or None when they do not."""
+def other_settings(
+    stored_path: Path, current: dict, ignore: tuple[str, ...], upgrade: Upgrade | None = None
+) -> str | None:
+    """How the settings saved at ``stored_path`` (read through ``upgrade``) differ from
+    ``current`` (the first keys, with both values), or None when they do not."""
     try:
         stored = OmegaConf.to_container(OmegaConf.load(stored_path), resolve=True)
     except Exception as err:  # noqa: BLE001 - YAML's, OmegaConf's and decoding errors alike
@@ -164,6 +134,8 @@ def other_settings(stored_path: Path, current: dict, ignore: tuple[str, ...]) ->
             f"{stored_path} is not a settings file bgap wrote (it holds no settings); choose "
             "another output folder, or remove that file if the folder is yours"
         )
+    if upgrade is not None:
+        stored = upgrade(stored, current)
     keys = differing_keys(stored, current, ignore)
     if not keys:
         return None
@@ -173,10 +145,16 @@ def other_settings(stored_path: Path, current: dict, ignore: tuple[str, ...]) ->
     return shown + (f" and {len(keys) - 4} more" if len(keys) > 4 else "")
 
 
-def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = VOLATILE) -> Path:
+def save_run_metadata(
+    out_dir: str | Path,
+    cfg: Any,
+    ignore: tuple[str, ...] = VOLATILE,
+    upgrade: Upgrade | None = None,
+) -> Path:
     """Write ``config.yaml`` (resolved) and ``command.txt`` into ``out_dir``.
 
-    A folder that already holds a ``config.yaml`` of other settings is refused with a
+    A folder that already holds a ``config.yaml`` of other settings (read through
+    ``upgrade``, where its command's settings have a history) is refused with a
     :class:`ConfigError` naming the differing keys: a rerun resumes or repeats the same
     work, it never overwrites or mixes in a result of other settings."""
     out = Path(out_dir)
@@ -185,7 +163,7 @@ def save_run_metadata(out_dir: str | Path, cfg: Any, ignore: tuple[str, ...] = V
     stored_path = out / CONFIG
     refuse_foreign(out)
     if stored_path.exists() and not only_metadata(out):
-        differs = other_settings(stored_path, current, ignore)
+        differs = other_settings(stored_path, current, ignore, upgrade)
         if differs:
             raise ConfigError(
                 f"{out} holds a result of other settings: {differs}; choose another "

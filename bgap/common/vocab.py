@@ -1,20 +1,11 @@
 """The model's vocabulary: names, codes and constants every part of bgap shares.
 
-A leaf module: it imports nothing of bgap, so anything may import it. Road and vehicle
-constants are read from highway-env (the reference simulator), not restated, so the
-vectorised backend's kernels and the environment cannot disagree on them.
+A leaf module: it imports nothing of bgap and no simulator, so anything may import it
+(CMetric's command too, which knows no simulator). The road's, the vehicles' and the ego's
+action constants, which highway-env defines, are :mod:`bgap.traffic.road`'s.
 """
 
 from __future__ import annotations
-
-import inspect
-
-from highway_env.envs.common.action import DiscreteMetaAction
-from highway_env.road.lane import StraightLane
-from highway_env.road.road import RoadNetwork
-from highway_env.vehicle.behavior import IDMVehicle
-from highway_env.vehicle.controller import ControlledVehicle
-from highway_env.vehicle.kinematics import Vehicle
 
 # ---------------------------------------------------------------- driver classes
 EGO, CONSERVATIVE, AGGRESSIVE = "ego", "conservative", "aggressive"
@@ -26,11 +17,7 @@ LABEL_NAMES = {code: name for name, code in LABEL_CODES.items()}
 COLORS = {EGO: (50, 200, 0), AGGRESSIVE: (220, 40, 40), CONSERVATIVE: (40, 90, 220)}
 """Paper figure colours (RGB): ego green, aggressive red, conservative blue."""
 
-# ---------------------------------------------------------------- ego actions
-ACTIONS = {name: index for index, name in DiscreteMetaAction.ACTIONS_ALL.items()}
-LANE_LEFT, IDLE, LANE_RIGHT = ACTIONS["LANE_LEFT"], ACTIONS["IDLE"], ACTIONS["LANE_RIGHT"]
-FASTER, SLOWER = ACTIONS["FASTER"], ACTIONS["SLOWER"]
-N_ACTIONS = len(ACTIONS)
+# ---------------------------------------------------------------- the vector backend
 FINISHED = -1
 """The vector backend's "no action": the env's episode is over and no longer counted, so
 the step leaves it as it is (no simulation, no automatic reset); :func:`bgap.sim.rollout`
@@ -77,16 +64,3 @@ a crash whose partner was not reported (``bgap.rollout.EpisodeStats``)."""
 CRASH_KINDS = ENDINGS[1:]
 LANE_CHANGE_WINDOW = 2.0
 """Seconds after the start of an ego lane change during which a crash counts as its doing."""
-
-# ---------------------------------------------------------------- road and vehicles
-LANE_WIDTH = float(StraightLane.DEFAULT_WIDTH)
-VEHICLE_LENGTH, VEHICLE_WIDTH = float(Vehicle.LENGTH), float(Vehicle.WIDTH)
-EGO_MAX_SPEED, MIN_SPEED = float(Vehicle.MAX_SPEED), float(Vehicle.MIN_SPEED)
-_ROAD = inspect.signature(RoadNetwork.straight_road_network).parameters
-SPEED_LIMIT = float(_ROAD["speed_limit"].default)
-"""Speed limit of highway-env's straight road [m/s] (the lane speed limit of highway-v0)."""
-ROAD_LENGTH = float(_ROAD["length"].default)
-TAU_ACC, TAU_HEADING = ControlledVehicle.TAU_ACC, ControlledVehicle.TAU_HEADING
-TAU_LATERAL = ControlledVehicle.TAU_LATERAL
-MAX_STEERING = ControlledVehicle.MAX_STEERING_ANGLE
-LANE_CHANGE_DELAY = IDMVehicle.LANE_CHANGE_DELAY

@@ -35,9 +35,10 @@ def make(cfg: DatasetsConfig, dcfg, progress: bool = True) -> Path:
             save_run_metadata(out, dcfg)
             with tqdm(total=cfg.episodes, unit="ep", desc=cfg.source, disable=not progress) as bar:
                 table = record(cfg.sumo, cfg.episodes, cfg.seed, bar.update)
+            load_trajectories(table)  # CMetric reads what is written, a recording too
         else:
             table = import_module(f"bgap.datasets.{cfg.source}").read(cfg.path)
-            load_trajectories(table)  # CMetric reads what is written (a defect fails here)
+            load_trajectories(table)  # a file's defect fails here, before anything is written
             save_run_metadata(out, dcfg)
         path = out / "trajectories.parquet"
         write_atomic(path, lambda p: table.to_parquet(p, index=False))

@@ -20,10 +20,11 @@ from bgap.agents import zoo
 from bgap.agents.policies import as_policy, check_rows, load_model, model_path, rollout
 from bgap.common.config import app, load
 from bgap.common.runs import save_run_metadata, write_atomic
-from bgap.common.vocab import BASELINES, LANE_WIDTH
+from bgap.common.vocab import BASELINES
 from bgap.datasets.config import SCHEMAS, SimulateConfig
 from bgap.runner.locks import exclusive
 from bgap.sim.rollout import Rollout
+from bgap.traffic.road import LANE_WIDTH
 from bgap.traffic.scenario import env_config
 
 

@@ -18,10 +18,11 @@ from highway_env.road.road import Road, RoadNetwork
 from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.common.errors import check_memory
-from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO, SPEED_LIMIT
+from bgap.common.vocab import AGGRESSIVE, COLORS, CONSERVATIVE, EGO
 from bgap.envs.replay import ReplayScene, log_contact, recorded_id
 from bgap.traffic.behaviors import count_aggressive, create_driver, episode_mix, mix_stream
 from bgap.traffic.replay import load_replay
+from bgap.traffic.road import SPEED_LIMIT
 from bgap.traffic.scenario import (
     REWARD_TERMS,
     check_config,

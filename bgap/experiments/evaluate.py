@@ -32,13 +32,13 @@ from bgap.common.errors import ConfigError
 from bgap.common.presets import CONF_DIR
 from bgap.common.runs import (
     VOLATILE,
-    as_before,
     digest,
     save_run_metadata,
     write_atomic,
 )
 from bgap.common.scores import episode_distance
 from bgap.common.vocab import BASELINES
+from bgap.experiments.compat import as_before, upgrade
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.evaluate_policies import model_records, policy_specs
 from bgap.experiments.evaluate_results import (
@@ -318,7 +318,7 @@ def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
             "folders, model.zip files or zoo names) or baselines=[idle,random,rule]"
         )
     with exclusive(out):  # a second evaluation into the same folder is refused
-        save_run_metadata(out, dcfg)
+        save_run_metadata(out, dcfg, upgrade=upgrade)
         cells = grid_cells(cfg)
         episodes = compact(evaluate(cfg, specs, cells))  # what is stored is what is summarised
         summary = summarize(episodes)

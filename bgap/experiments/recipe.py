@@ -49,6 +49,7 @@ from omegaconf import DictConfig
 from bgap.common.config import app, load, validate
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
+from bgap.experiments.compat import upgrade
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
 from bgap.experiments.evaluate_results import crash_split
 from bgap.experiments.recipe_choice import choose, choose_by_rule
@@ -389,7 +390,7 @@ def main(dcfg: DictConfig) -> None:
 
     cfg: RecipeConfig = load(dcfg)
     out = Path(cfg.out or Path(cfg.root) / "recipe")
-    save_run_metadata(out, dcfg)
+    save_run_metadata(out, dcfg, upgrade=upgrade)
     paths = recipe(cfg)
     print((out / "table.md").read_text())
     for name, path in paths.items():

@@ -22,13 +22,13 @@ from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
 from bgap.common.config import app, load
 from bgap.common.runs import (
     VOLATILE,
-    as_before,
     digest,
     model_file,
     save_run_metadata,
     write_atomic,
 )
 from bgap.common.vocab import POLICIES, YARDSTICK_NAMES, YARDSTICKS
+from bgap.experiments.compat import as_before, upgrade
 from bgap.experiments.config import SCHEMAS, ExperimentConfig
 from bgap.experiments.evaluate import evaluate
 from bgap.experiments.evaluate_results import (
@@ -77,7 +77,7 @@ def run(cfg: ExperimentConfig, dcfg: DictConfig | None = None) -> Path:
         models[name] = str(model_file(d, cfg.checkpoint))
     out = results_dir(cfg)
     if dcfg is not None:
-        save_run_metadata(out, dcfg)
+        save_run_metadata(out, dcfg, upgrade=upgrade)
     policies = {**models, **{b: b for b in cfg.baselines}}
     episodes = compact(evaluate(cfg, policies))  # what is stored is what is summarised
     summary = summarize(episodes)

@@ -38,6 +38,7 @@ from bgap.common.runs import (
     save_run_metadata,
     write_atomic,
 )
+from bgap.experiments.compat import upgrade
 from bgap.experiments.config import ExperimentConfig, compose
 from bgap.experiments.sweep import figures_with_rule, split_rule
 from bgap.runner.jobs import run_jobs
@@ -104,7 +105,7 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
     settings = {"runs": str(runs_dir), "group": k, "episodes": episodes, "out": str(out),
                 "table": str(table_dir)}  # fmt: skip
     for folder in dict.fromkeys((out, table_dir)):
-        save_run_metadata(folder, OmegaConf.create(settings))
+        save_run_metadata(folder, OmegaConf.create(settings), upgrade=upgrade)
     table = runs(runs_dir)
     table["group"] = groups(table, k)
     jobs = [(row.config, str(row.run), episodes) for row in table.itertuples()]

@@ -40,10 +40,11 @@ from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import VOLATILE, as_before, digest, write_atomic
+from bgap.common.runs import VOLATILE, digest, write_atomic
 from bgap.common.scores import constrained_score, episode_distance
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments import trial_log
+from bgap.experiments.compat import as_before
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
 from bgap.experiments.training import training_config

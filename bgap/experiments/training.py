@@ -21,14 +21,13 @@ from bgap.agents.observation import MODEL_ATTRIBUTE
 from bgap.agents.per import PrioritizedReplayBuffer, check_replay_memory
 from bgap.common.errors import ConfigError
 from bgap.common.runs import (
-    ADDED_LATER,
     CHECKPOINT_STATE,
     VOLATILE,
-    as_before,
     digest,
     read_or_refuse,
     save_run_metadata,
 )
+from bgap.experiments.compat import ADDED_LATER, as_before, upgrade
 from bgap.experiments.config import CHECKPOINT_SEED, ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
@@ -174,7 +173,7 @@ def open_run_dir(cfg: ExperimentConfig, run_dir: Path | None = None) -> tuple[Pa
     recover_checkpoint(run_dir)  # a kill in the middle of writing one
     # The config it trains under (for policy=default the stock traffic, not the composed
     # behaviour preset).
-    save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT)
+    save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT, upgrade=upgrade)
     if (run_dir / "model.zip").exists():
         return run_dir, "finished"  # also with resume=true, which bgap.run always passes
     if (ckpt / CHECKPOINT_STATE).exists():

@@ -39,11 +39,13 @@ from bgap.common.plotting import pyplot
 from bgap.common.presets import check_owner, preset_path, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.common.scores import collisions_per_100km, constrained_score, episode_distance
-from bgap.common.vocab import IDLE, SPEED_FLOOR
+from bgap.common.vocab import SPEED_FLOOR
+from bgap.experiments.compat import upgrade
 from bgap.experiments.config import SCHEMAS as EXPERIMENT_SCHEMAS
 from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.evaluate import cell_env_config, grid_cells
 from bgap.sim.rollout import rollout
+from bgap.traffic.road import IDLE
 
 SPACE = {
     "time_wanted": (0.5, 3.0),
@@ -173,7 +175,7 @@ def run(cfg: TuneRuleConfig) -> Path:
     owner = f"bgap.tune_rule situation={cfg.situation}"
     target = cfg.preset or preset_path("rule", cfg.situation)
     check_owner(target, owner)  # before minutes of search, not after
-    out = save_run_metadata(cfg.out or f"outputs/tune_rule/{cfg.situation}", cfg)
+    out = save_run_metadata(cfg.out or f"outputs/tune_rule/{cfg.situation}", cfg, upgrade=upgrade)
     table = search(cfg)
     write_atomic(out / "trials.csv", table.to_csv(index=False))
     plot(table, out / "search.png", f"the rule-based ego tuned: {cfg.situation}")

@@ -18,6 +18,7 @@ import numba as nb
 import numpy as np
 
 from bgap.common import vocab
+from bgap.traffic import road
 
 # Float state fields --------------------------------------------------------------------
 X, Y, HEADING, SPEED, TARGET_SPEED, TIMER, IMPACT_X, IMPACT_Y, STEER, ACC = range(10)
@@ -39,22 +40,22 @@ R_SIMULATED, R_SWITCHED, R_PENDING, R_PARKED, R_LOG, R_GONE = range(6)
 # (>= R_LOG: following its log; R_GONE: it left this frame and is parked after the frame)
 PARK_X, PARK_SPACING = -1.0e7, 50.0  # where absent vehicles wait: off the road, apart
 
-# Labels and ego meta-actions (bgap.vocab: highway-env's DiscreteMetaAction.ACTIONS_ALL)
+# Labels and ego meta-actions (bgap.traffic.road: highway-env's DiscreteMetaAction.ACTIONS_ALL)
 EGO, CONSERVATIVE, AGGRESSIVE = (vocab.LABEL_CODES[k] for k in (vocab.EGO, *vocab.CLASSES))
-LANE_LEFT, IDLE, LANE_RIGHT = vocab.LANE_LEFT, vocab.IDLE, vocab.LANE_RIGHT
-FASTER, SLOWER = vocab.FASTER, vocab.SLOWER
+LANE_LEFT, IDLE, LANE_RIGHT = road.LANE_LEFT, road.IDLE, road.LANE_RIGHT
+FASTER, SLOWER = road.FASTER, road.SLOWER
 
-# Constants of highway-env's vehicles and road (bgap.vocab reads them from highway-env)
-LENGTH, WIDTH = vocab.VEHICLE_LENGTH, vocab.VEHICLE_WIDTH
+# Constants of highway-env's vehicles and road (bgap.traffic.road reads them from highway-env)
+LENGTH, WIDTH = road.VEHICLE_LENGTH, road.VEHICLE_WIDTH
 DIAGONAL = math.sqrt(LENGTH**2 + WIDTH**2)
-LANE_WIDTH = vocab.LANE_WIDTH
-ROAD_LENGTH = vocab.ROAD_LENGTH
-SPEED_LIMIT = vocab.SPEED_LIMIT
-TAU_ACC, TAU_HEADING, TAU_LATERAL = vocab.TAU_ACC, vocab.TAU_HEADING, vocab.TAU_LATERAL
+LANE_WIDTH = road.LANE_WIDTH
+ROAD_LENGTH = road.ROAD_LENGTH
+SPEED_LIMIT = road.SPEED_LIMIT
+TAU_ACC, TAU_HEADING, TAU_LATERAL = road.TAU_ACC, road.TAU_HEADING, road.TAU_LATERAL
 KP_A, KP_HEADING, KP_LATERAL = 1 / TAU_ACC, 1 / TAU_HEADING, 1 / TAU_LATERAL
-MAX_STEERING = vocab.MAX_STEERING
-LANE_CHANGE_DELAY = vocab.LANE_CHANGE_DELAY
-EGO_MAX_SPEED, MIN_SPEED = vocab.EGO_MAX_SPEED, vocab.MIN_SPEED
+MAX_STEERING = road.MAX_STEERING
+LANE_CHANGE_DELAY = road.LANE_CHANGE_DELAY
+EGO_MAX_SPEED, MIN_SPEED = road.EGO_MAX_SPEED, road.MIN_SPEED
 
 _jit = nb.njit(cache=True, nogil=True, error_model="numpy")
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from bgap.common.vocab import LANE_WIDTH, VEHICLE_LENGTH, VEHICLE_WIDTH
+from bgap.traffic.road import LANE_WIDTH, VEHICLE_LENGTH, VEHICLE_WIDTH
 
 WIDTH = 960
 """[px] Picture width; heights and widths are multiples of 16 (H.264's macroblock)."""

@@ -14,7 +14,7 @@ from bgap.sim.core import N_PARAM
 
 # Parameter column of each IDMVehicle attribute, in highway-env's units except P_B, which
 # holds the braking magnitude -COMFORT_ACC_MIN.
-_COLUMNS = {
+PARAM_COLUMNS = {
     "TIME_WANTED": core.P_T,
     "DISTANCE_WANTED": core.P_D0,
     "COMFORT_ACC_MAX": core.P_A,
@@ -28,7 +28,8 @@ _COLUMNS = {
 }
 
 
-def _column_value(attr: str, value: float) -> float:
+def column_value(attr: str, value: float) -> float:
+    """A highway-env attribute's value as its parameter column holds it."""
     return -value if attr == "COMFORT_ACC_MIN" else value
 
 
@@ -36,8 +37,8 @@ def driver_params(vehicle: Any) -> np.ndarray:
     """The IDM/MOBIL attributes of a highway-env vehicle (or vehicle class) as a parameter
     row; P_OWN is left 0."""
     row = np.zeros(N_PARAM)
-    for attr, col in _COLUMNS.items():
-        row[col] = _column_value(attr, float(getattr(vehicle, attr)))
+    for attr, col in PARAM_COLUMNS.items():
+        row[col] = column_value(attr, float(getattr(vehicle, attr)))
     return row
 
 

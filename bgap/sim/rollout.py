@@ -28,9 +28,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from bgap.common.vocab import FINISHED, IDLE, LABEL_NAMES, LANE_CHANGE_WINDOW
+from bgap.common.vocab import FINISHED, LABEL_NAMES, LANE_CHANGE_WINDOW
 from bgap.sim.recorder import table_from_states
 from bgap.sim.simulators import make_vector_env
+from bgap.traffic.road import IDLE
 
 Policy = Callable[[np.ndarray, list[np.random.Generator]], np.ndarray]
 """A batch of observations (B, V, 5) and one random stream per episode -> B actions."""

@@ -46,7 +46,7 @@ from bgap.sim.core import (
     X,
     Y,
 )
-from bgap.sim.highway_params import _COLUMNS, IDM_DEFAULTS, _column_value, check_supported
+from bgap.sim.highway_params import IDM_DEFAULTS, PARAM_COLUMNS, check_supported, column_value
 from bgap.traffic.behaviors import (
     DRIVER_ATTRIBUTES,
     BehaviorVehicle,
@@ -287,7 +287,7 @@ class VectorHighway(gym.vector.VectorEnv):
             row[core.P_DELTA] = np.nan  # drawn per vehicle unless the class sets it
             for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
                 if params.get(key) is not None:
-                    row[_COLUMNS[attr]] = _column_value(attr, float(convert(params[key])))
+                    row[PARAM_COLUMNS[attr]] = column_value(attr, float(convert(params[key])))
             if not is_stock(params):
                 row[core.P_OWN] = 1.0
                 row[core.P_VMAX] = BehaviorVehicle.MAX_SPEED

@@ -34,7 +34,8 @@ import pandas as pd
 
 from bgap.common.errors import TrajectoryError, check
 from bgap.common.tables import load_trajectories
-from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, LABEL_NAMES, LANE_WIDTH
+from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, LABEL_NAMES
+from bgap.traffic.road import LANE_WIDTH
 
 SOURCES = ("simulated", "replay")
 MODES = ("log", "reactive")
@@ -159,7 +160,7 @@ class Replay:
         # "dense_mix50"), every scene is numbered by its sorted order, the number
         # traffic.scene takes
         groups = _in_order(df.groupby("episode", sort=True))
-        numbered = all(isinstance(k, (int, np.integer)) for k, _ in groups)
+        numbered = _integer_ids(groups)
         self.scenes = [self._scene(int(k) if numbered else i, g) for i, (k, g) in enumerate(groups)]
         self.candidates = [
             (s, v)
@@ -277,9 +278,13 @@ def _in_order(groups) -> list[tuple[object, pd.DataFrame]]:
     order, their digit runs read as numbers ("v2" before "v10"), so that a table whose ids
     are strings replays as the same table with the integers they name does."""
     groups = list(groups)
-    if all(isinstance(k, (int, np.integer)) for k, _ in groups):
+    if _integer_ids(groups):
         return groups
     return sorted(groups, key=lambda kg: _natural(kg[0]))
+
+
+def _integer_ids(groups: list[tuple[object, pd.DataFrame]]) -> bool:
+    return all(isinstance(k, (int, np.integer)) for k, _ in groups)
 
 
 def _natural(key: object) -> list:

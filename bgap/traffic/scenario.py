@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import functools
 import inspect
 import math
 from dataclasses import asdict, dataclass, field
@@ -294,15 +295,17 @@ def _check_nested(key: str, given: dict[str, Any], kind: Any) -> None:
         raise ConfigError(f"{key}.{unknown[0]} is not a setting of the {kind} {key} ({hint})")
 
 
-def _parameters(cls: type) -> set[str]:
-    """The keyword parameters of ``cls``'s constructor and of the constructors it calls."""
+@functools.cache
+def _parameters(cls: type) -> frozenset[str]:
+    """The keyword parameters of ``cls``'s constructor and of the constructors it calls
+    (inspected once per class and process)."""
     names = set()
     for klass in cls.__mro__:
         if klass.__module__.startswith("highway_env") and "__init__" in vars(klass):
             for name, p in inspect.signature(klass.__init__).parameters.items():
                 if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
                     names.add(name)
-    return names - {"self", "env"}
+    return frozenset(names - {"self", "env"})
 
 
 def _merge(base: Any, value: Any) -> Any:
