@@ -190,11 +190,13 @@ CASES = [
     ("cmetric", ["input={tmp}/good.csv", "fps=0"], r"fps=0\.0 is invalid"),
     ("cmetric", ["input={tmp}/good.csv", "cmetric.window=0"], r"cmetric\.window=0\.0"),
     # --- figures: evaluation folders that hold no episodes, or damaged ones
+    ("figures", ["evaluations=[{tmp}/nothing]"], r"no evaluation episodes in .*nothing: run"),
     ("figures", ["{tmp}/nothing"], r"no evaluation episodes in .*nothing: run bgap.evaluate"),
+    ("figures", ["{tmp}/nothing", "out={tmp}/done"], r"done holds the results of an earlier"),
     ("figures", ["{tmp}/nothing", "--out", "{tmp}/done"], r"done holds the results of an earlier"),
     ("cmetric.boundary", ["{tmp}/good.csv", "--out", "{tmp}/done"], r"json.* from an earlier"),
     ("cmetric.boundary", ["{tmp}/nothing"], r"nothing: no such file"),
-    ("figures", ["{tmp}/evaluation"], r"episodes.parquet cannot be read as Parquet"),
+    ("figures", ["evaluations=[{tmp}/evaluation]"], r"episodes.parquet cannot be read as Parquet"),
     # --- select: no run folders, a bad group size, an earlier selection
     ("select", ["{tmp}/nothing", "--out", "{tmp}/kept"], r"no run folders .* in .*nothing"),
     ("select", ["{tmp}/nothing", "--out", "{tmp}/k", "--group", "0"], r"--group: .0. must be"),

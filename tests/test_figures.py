@@ -597,7 +597,7 @@ def test_figures_refuses_an_arm_that_replayed_another_table(tmp_path, capsys, mo
     with pytest.raises(ConfigError, match="evaluate@rehearsed and evaluate_baselines") as err:
         check_inputs([root])
     assert "their replay table differs" in str(err.value)
-    status, out = _command("bgap.figures", [str(root), "--out", str(tmp_path / "page")],
+    status, out = _command("bgap.figures", [f"evaluations=[{root}]", f"out={tmp_path / 'page'}"],
                            capsys, monkeypatch)  # fmt: skip
     assert status == 2 and "replay table differs" in out and "Traceback" not in out
     assert not (tmp_path / "page").exists()

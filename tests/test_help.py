@@ -50,7 +50,6 @@ MAX_LINES = 40
 
 ARGPARSE_COMMANDS = (
     "bgap.cmetric.boundary",
-    "bgap.figures",
     "bgap.select",
     "bgap.parity",
     "bgap.pipeline",

@@ -1,13 +1,14 @@
-"""The paper's figures and claims from fresh numbers: ``python -m bgap.figures RESULTS_DIR``.
+"""The paper's figures and claims from fresh numbers:
+``python -m bgap.figures evaluations=[RESULTS_DIR] out=DIR``.
 
 Reads the evaluation folders ``bgap.evaluate`` wrote (``episodes.parquet``, ``models.csv``
 and ``config.yaml`` each; a folder of such folders, such as the pipeline's
 ``results/evaluation``, stands for all of them): the study's trainings (named by their run
 folders, ``[...]/<arm>/<density>/<density>-<behavior_rich|default>-s<seed>``; a bare
 ``<density>-<family>-s<seed>`` is arm ``main``), the baselines, and the same policies in
-highway-env's stock traffic (an evaluation with ``behavior=stock``, or any folder given with
-``--stock``). Nothing else: no model and no run folder, so a clone recomputes every figure
-from the committed episodes. Writes to ``--out`` (default ``outputs/figures``; the
+highway-env's stock traffic (an evaluation with ``behavior=stock``, or any folder given in
+``stock=[...]``). Nothing else: no model and no run folder, so a clone recomputes every
+figure from the committed episodes. Writes to ``out`` (default ``outputs/figures``; the
 pipeline's stage: ``results/``):
 
 - ``cells.csv``: per arm, policy family and cell, the mean over training seeds of collision
@@ -35,47 +36,71 @@ follows from the corrected p-values.
 
 from __future__ import annotations
 
-import argparse
+import sys
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from omegaconf import DictConfig
+
 from bgap.analysis.plots import make_figures
-from bgap.common.cli import OneLineParser, run
+from bgap.common.config import app, load
+from bgap.common.errors import ConfigError
 
 WRITTEN = ("README.md", "cells.csv", "claims.csv", "own_traffic.csv", "yardsticks.csv",
            "table2.md", "metrics.json", "figures")  # fmt: skip
-"""What :func:`bgap.analysis.plots.make_figures` writes into ``--out``."""
+"""What :func:`bgap.analysis.plots.make_figures` writes into ``out``."""
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = OneLineParser(
-        prog="bgap.figures",
-        description=__doc__.split("\n\n")[0] + " What it writes: docs/pipeline.md.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("evaluations", nargs="+", help="bgap.evaluate's output folders, or "
-                        "folders of them (the pipeline: results/evaluation)")  # fmt: skip
-    parser.add_argument("--stock", nargs="*", default=[],
-                        help="evaluation folders to read as stock traffic (one run with "
-                        "behavior=stock is read so anyway)")  # fmt: skip
-    parser.add_argument(
-        "--out",
-        default="outputs/figures",
-        help="where figures and tables go (the pipeline: results)",
-    )
-    args = parser.parse_args(argv)
-    earlier = [n for n in WRITTEN if (Path(args.out) / n).exists()]
+@dataclass
+class FiguresConfig:
+    """``python -m bgap.figures``: the results page from evaluation folders."""
+
+    evaluations: list[str] = field(default_factory=lambda: ["results/evaluation"])
+    """bgap.evaluate's output folders, or folders of them (the pipeline: results/evaluation)."""
+    stock: list[str] = field(default_factory=list)
+    """Evaluation folders read as stock traffic (one run with behavior=stock is read so anyway)."""
+    out: str = "outputs/figures"
+    """Where the page, its tables and figures go (the pipeline: results)."""
+
+
+SCHEMAS = ((None, "base_figures", FiguresConfig),)
+
+
+@app("figures", "bgap.figures", SCHEMAS, "the files written so far are in out; rerun the command")
+def _hydra_main(dcfg: DictConfig) -> None:
+    cfg: FiguresConfig = load(dcfg)
+    earlier = [n for n in WRITTEN if (Path(cfg.out) / n).exists()]
     if earlier:  # a rerun refuses: it never overwrites an earlier result (the pipeline's
         # stage starts from an empty set: DVC removes a stage's outputs before it runs)
-        parser.exit(2, f"bgap.figures: {args.out} holds the results of an earlier run "
-                    f"({', '.join(earlier)}); give another --out, or remove them to make them "
-                    "again\n")  # fmt: skip
-    paths = run(
-        "bgap.figures",
-        lambda: make_figures(args.evaluations, args.out, args.stock),
-        f"the files written so far are in {args.out}; rerun the command",
-    )
+        raise ConfigError(
+            f"out={cfg.out} holds the results of an earlier run ({', '.join(earlier)}); give "
+            "another out=, or remove them to make them again"
+        )
+    paths = make_figures(cfg.evaluations, cfg.out, cfg.stock)
     for name, path in paths.items():
         print(f"{name}: {path}")
+
+
+def main() -> None:
+    """The Hydra app. The older command line still reads: leading arguments without ``=``
+    are the evaluations, ``--out DIR`` is ``out=DIR`` and ``--stock A B`` is ``stock=[A,B]``."""
+    args, evaluations, key = [], [], None
+    for arg in sys.argv[1:]:
+        if arg in ("--out", "--stock"):
+            key = arg[2:]
+            args.append(f"{key}=" if key == "out" else "stock=[]")
+        elif key == "out":
+            args[-1], key = f"out={arg}", None
+        elif key == "stock" and "=" not in arg and not arg.startswith("-"):
+            listed = args[-1][len("stock=[") : -1]
+            args[-1] = f"stock=[{listed + ',' if listed else ''}{arg}]"
+        elif not args and "=" not in arg and not arg.startswith("-"):
+            evaluations.append(arg)
+        else:
+            args.append(arg)
+            key = None
+    sys.argv[1:] = ([f"evaluations=[{','.join(evaluations)}]"] if evaluations else []) + args
+    _hydra_main()
 
 
 if __name__ == "__main__":
