@@ -195,7 +195,9 @@ CASES = [
     ("figures", ["{tmp}/nothing", "out={tmp}/done"], r"done holds the results of an earlier"),
     ("figures", ["{tmp}/nothing", "--out", "{tmp}/done"], r"done holds the results of an earlier"),
     ("cmetric.boundary", ["{tmp}/good.csv", "--out", "{tmp}/done"], r"json.* from an earlier"),
+    ("cmetric.boundary", ["tables=[{tmp}/good.csv]", "out={tmp}/done"], r"json.* from an earlier"),
     ("cmetric.boundary", ["{tmp}/nothing"], r"nothing: no such file"),
+    ("cmetric.boundary", ["tables=[]"], r"tables=\[\] is invalid: give labelled tables"),
     ("figures", ["evaluations=[{tmp}/evaluation]"], r"episodes.parquet cannot be read as Parquet"),
     # --- select: no run folders, a bad group size, an earlier selection
     ("select", ["{tmp}/nothing", "--out", "{tmp}/kept"], r"no run folders .* in .*nothing"),
@@ -239,7 +241,7 @@ MODULES = {
     "parity": "bgap.parity",
     "figures": "bgap.figures",
     "select": "bgap.select",
-    "cmetric.boundary": "bgap.cmetric.boundary",
+    "cmetric.boundary": "bgap.cmetric.boundary.__main__",
 }
 
 

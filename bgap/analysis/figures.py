@@ -36,13 +36,13 @@ follows from the corrected p-values.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from bgap.analysis.plots import make_figures
+from bgap.common.cli import older_command_line
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 
@@ -84,22 +84,7 @@ def _hydra_main(dcfg: DictConfig) -> None:
 def main() -> None:
     """The Hydra app. The older command line still reads: leading arguments without ``=``
     are the evaluations, ``--out DIR`` is ``out=DIR`` and ``--stock A B`` is ``stock=[A,B]``."""
-    args, evaluations, key = [], [], None
-    for arg in sys.argv[1:]:
-        if arg in ("--out", "--stock"):
-            key = arg[2:]
-            args.append(f"{key}=" if key == "out" else "stock=[]")
-        elif key == "out":
-            args[-1], key = f"out={arg}", None
-        elif key == "stock" and "=" not in arg and not arg.startswith("-"):
-            listed = args[-1][len("stock=[") : -1]
-            args[-1] = f"stock=[{listed + ',' if listed else ''}{arg}]"
-        elif not args and "=" not in arg and not arg.startswith("-"):
-            evaluations.append(arg)
-        else:
-            args.append(arg)
-            key = None
-    sys.argv[1:] = ([f"evaluations=[{','.join(evaluations)}]"] if evaluations else []) + args
+    older_command_line("evaluations", listed=True, lists=("stock",))
     _hydra_main()
 
 

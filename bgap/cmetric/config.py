@@ -1,4 +1,5 @@
-"""Schemas of the CMetric commands (``bgap.cmetric``, ``bgap.cmetric.search``)."""
+"""Schemas of the CMetric commands (``bgap.cmetric``, ``bgap.cmetric.search``,
+``bgap.cmetric.boundary``)."""
 
 from __future__ import annotations
 
@@ -32,12 +33,34 @@ class CMetricAppConfig:
         check(self.fps > 0, "fps", self.fps, "must be a positive frame rate [Hz] (e.g. fps=15)")
 
 
+@dataclass
+class BoundaryConfig:
+    """``python -m bgap.cmetric.boundary tables=[...]``: the class boundary on labelled
+    tables."""
+
+    tables: list[str] = field(default_factory=list)
+    """Labelled trajectory tables, or folders holding ``trajectories.parquet`` files (the
+    pipeline: its ``cmetric_data``)."""
+    cmetric: str = "tuned"
+    """The CMetric preset the tables are scored with."""
+    out: str = "outputs/cmetric_boundary"
+    """The report folder."""
+    preset: Optional[str] = None
+    """Where the boundary preset goes; default ``<out>/<cmetric>.yaml``."""
+
+    def __post_init__(self) -> None:
+        check(bool(self.tables), "tables", self.tables, "give labelled tables, e.g. "
+              "tables=[outputs/pipeline/cmetric_data]")  # fmt: skip
+
+
 SCHEMAS = (
     ("cmetric", "base_cmetric", CMetricConfig),
+    (None, "base_cmetric_boundary", BoundaryConfig),
     (None, "base_cmetric_app", CMetricAppConfig),
     (None, "base_cmetric_search", CMetricSearchConfig),
 )
-"""Hydra ConfigStore entries of ``cmetric_app.yaml`` and ``cmetric_search.yaml``."""
+"""Hydra ConfigStore entries of ``cmetric_app.yaml``, ``cmetric_boundary.yaml`` and
+``cmetric_search.yaml``."""
 
 
 def compose(config_name: str, overrides: list[str] | None = None) -> DictConfig:

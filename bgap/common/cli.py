@@ -147,6 +147,53 @@ def bare_first_argument(*keys: str) -> None:
         sys.argv[i] = f"{key}={sys.argv[i]}"
 
 
+HYDRA_OPTIONS = ("--help", "-h", "--hydra-help", "--cfg", "-c", "--info", "--resolve",
+                 "--package", "-p", "--multirun", "-m", "--run", "-r", "--version")  # fmt: skip
+"""Hydra's own command-line options: passed through as they are."""
+
+
+def older_command_line(
+    positional: str = "",
+    listed: bool = False,
+    lists: tuple[str, ...] = (),
+    flags: tuple[str, ...] = (),
+) -> None:
+    """Rewrite ``sys.argv`` of a command's older ``--option`` form (argparse) into Hydra's
+    ``key=value`` overrides, so scripts written for it keep working: leading arguments
+    without ``=`` are ``positional`` (a list when ``listed``), ``--name VALUE`` is
+    ``name=VALUE`` (for a ``lists`` key, ``name=[...]`` of every comma-separated value after
+    it), and ``--name`` of ``flags`` is ``name=true``; ``-`` in a name is ``_``. Hydra's own
+    options (:data:`HYDRA_OPTIONS`) pass through."""
+    args: list[str] = []
+    bare: list[str] = []
+    key = None
+    for arg in sys.argv[1:]:
+        value = not arg.startswith("-") and "=" not in arg
+        name = arg[2:].replace("-", "_") if arg.startswith("--") and "=" not in arg else None
+        if arg in HYDRA_OPTIONS or (name is None and not value) or (name and arg[2:3] == "-"):
+            args.append(arg)
+            key = None
+        elif name in flags:
+            args.append(f"{name}=true")
+            key = None
+        elif name is not None:
+            key = name
+            args.append(f"{name}=[]" if name in lists else f"{name}=")
+        elif key in lists:
+            items = [x for x in args[-1][len(key) + 2 : -1].split(",") if x]
+            args[-1] = f"{key}=[{','.join(items + arg.split(','))}]"
+        elif key is not None:
+            args[-1], key = f"{key}={arg}", None
+        elif positional and not args:
+            bare.append(arg)
+        else:
+            args.append(arg)
+    if bare:
+        args[:0] = [f"{positional}=[{','.join(bare)}]"] if listed else [f"{positional}={bare[0]}",
+                                                                         *bare[1:]]  # fmt: skip
+    sys.argv[1:] = args
+
+
 class OneLineParser(argparse.ArgumentParser):
     """argparse for the commands that take ``--options`` (parity, bench, figures,
     pipeline): a bad option is one line and exit status 2, as with every other command."""

@@ -1,7 +1,7 @@
 """A class boundary on CMetric's aggressiveness, fixed once on bgap's own labelled tables.
 
-    python -m bgap.cmetric.boundary outputs/pipeline/cmetric_data --cmetric tuned \
-        --out results/cmetric/boundary --preset bgap/conf/cmetric/boundary/tuned.yaml
+    python -m bgap.cmetric.boundary tables=[outputs/pipeline/cmetric_data] cmetric=tuned \
+        out=results/cmetric/boundary preset=bgap/conf/cmetric/boundary/tuned.yaml
 
 The boundary is the aggressiveness above which a vehicle reads aggressive: the threshold
 that maximises Youden's J (true minus false positive rate: balanced accuracy, whatever the
@@ -15,24 +15,17 @@ boundary), ``command.txt`` and the preset (:class:`ClassBoundary`).
 
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from omegaconf import OmegaConf
 
 from bgap.cmetric.io import load_trajectories
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.score import score_trajectories
-from bgap.common.cli import OneLineParser, run
 from bgap.common.errors import ConfigError
-from bgap.common.plotting import pyplot
 from bgap.common.presets import load_preset, preset_path
-from bgap.common.runs import write_atomic
 from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE
 
 BOUNDARY_DIR = "cmetric/boundary"
@@ -138,74 +131,3 @@ def packaged(cmetric: str = "tuned") -> ClassBoundary:
             "cmetric_boundary stage fixes it (dvc repro cmetric_boundary)"
         )
     return load_preset(ClassBoundary, path)
-
-
-def _tables(sources: list[str]) -> list[Path]:
-    found = []
-    for source in map(Path, sources):
-        found += sorted(source.rglob("trajectories.parquet")) if source.is_dir() else [source]
-    if not found:
-        raise ConfigError(f"no trajectories.parquet in {sources}")
-    return found
-
-
-def _plot(scored: pd.DataFrame, boundary: float, path: Path) -> None:
-    plt = pyplot()
-    fig, ax = plt.subplots(figsize=(5.5, 3.4))
-    bins = np.linspace(scored.aggressiveness.min(), scored.aggressiveness.max(), 40)
-    for label, colour in ((CONSERVATIVE, "tab:blue"), (AGGRESSIVE, "tab:red")):
-        ax.hist(scored[scored.label == label].aggressiveness, bins, alpha=0.5, color=colour,
-                label=label, density=True)  # fmt: skip
-    ax.axvline(boundary, color="k", ls="--", label=f"boundary {boundary:.3f}")
-    ax.set_xlabel("CMetric aggressiveness")
-    ax.set_ylabel("density of vehicles")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    write_atomic(path, lambda p: fig.savefig(p, dpi=110))
-    plt.close(fig)
-
-
-def main(argv: list[str] | None = None) -> None:
-    parser = OneLineParser(
-        prog="bgap.cmetric.boundary",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("tables", nargs="+", help="labelled tables, or folders holding "
-                        "trajectories.parquet files (the pipeline: its cmetric_data)")  # fmt: skip
-    parser.add_argument("--cmetric", default="tuned", help="the CMetric preset scored with")
-    parser.add_argument("--out", default="outputs/cmetric_boundary", help="report folder")
-    parser.add_argument("--preset", default=None, help="where the boundary preset goes "
-                        "(default: <out>/<cmetric>.yaml)")  # fmt: skip
-    args = parser.parse_args(argv)
-    preset = Path(args.preset or Path(args.out) / f"{args.cmetric}.yaml")
-    earlier = [str(p) for p in (Path(args.out) / "boundary.json", preset) if p.exists()]
-    if earlier:  # a rerun refuses (the pipeline's stage starts empty: DVC removes its outputs)
-        parser.exit(2, f"bgap.cmetric.boundary: {', '.join(earlier)} exist(s) from an earlier "
-                    "run; give another --out (and --preset), or remove them\n")  # fmt: skip
-
-    def task() -> Path:
-        result, report, scored = fit(_tables(args.tables), args.cmetric)
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        write_atomic(out / "boundary.json", json.dumps(report, indent=1))
-        write_atomic(out / "command.txt", " ".join(["python -m bgap.cmetric.boundary",
-                                                     *sys.argv[1:]]) + "\n")  # fmt: skip
-        _plot(scored, result.boundary, out / "scores.png")
-        note = (f"Class boundary of cmetric={args.cmetric}, fixed by python -m "
-                f"bgap.cmetric.boundary on {len(result.tables)} labelled tables (Youden's J on "
-                f"their even episodes); report: {out / 'boundary.json'}")  # fmt: skip
-        preset.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(preset, f"# {note}\n{OmegaConf.to_yaml(OmegaConf.structured(result))}")
-        tuned = report["tuning_balanced_accuracy"]
-        print(
-            f"boundary {result.boundary:.4f}: balanced accuracy {tuned:.3f} (even episodes), "
-            f"{result.balanced_accuracy:.3f} (odd); preset {preset}"
-        )
-        return preset
-
-    run("bgap.cmetric.boundary", task, "nothing was written; rerun the command")
-
-
-if __name__ == "__main__":
-    main()
