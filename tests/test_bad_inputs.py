@@ -201,7 +201,8 @@ CASES = [
     ("figures", ["evaluations=[{tmp}/evaluation]"], r"episodes.parquet cannot be read as Parquet"),
     # --- select: no run folders, a bad group size, an earlier selection
     ("select", ["{tmp}/nothing", "--out", "{tmp}/kept"], r"no run folders .* in .*nothing"),
-    ("select", ["{tmp}/nothing", "--out", "{tmp}/k", "--group", "0"], r"--group: .0. must be"),
+    ("select", ["{tmp}/nothing", "--out", "{tmp}/k", "--group", "0"], r"group=0 is invalid"),
+    ("select", ["runs={tmp}/nothing", "out={tmp}/kept"], r"no run folders .* in .*nothing"),
     ("select", ["{tmp}/nothing", "--out", "{tmp}/done"], r"done holds files no bgap command wrote"),
     # --- parity: the fast mode's rows would replace the parity stage's own
     (

@@ -49,7 +49,6 @@ MAX_LINES = 40
 
 
 ARGPARSE_COMMANDS = (
-    "bgap.select",
     "bgap.parity",
     "bgap.pipeline",
 )

@@ -51,7 +51,7 @@ def test_runs_fall_into_consecutive_groups_per_density_and_family():
     )
     g = groups(table, 3)
     assert (g[table.seed < 11] == 0).all() and (g[table.seed >= 11] == 1).all()
-    with pytest.raises(ConfigError, match="--group 4 does not divide the 6 behavior_rich runs"):
+    with pytest.raises(ConfigError, match="group=4 does not divide the 6 behavior_rich runs"):
         groups(table, 4)
 
 
@@ -90,7 +90,7 @@ def test_a_tiny_selection_keeps_each_groups_best_run_for_evaluation(tmp_path):
     specs = policy_specs(replace(cfgs[0], models=[str(out)], baselines=[]))
     assert list(specs) == [f"kept/sparse/{copy.name}"]
     assert pd.read_csv(tables / "selection.csv").kept.sum() == 1
-    # both folders record the settings the selection used (select has no composed config)
+    # both folders record the settings the selection used
     used = {"runs": str(tmp_path / "runs"), "group": 2, "episodes": 4, "out": str(out),
             "table": str(tables)}  # fmt: skip
     for folder in (out, tables):

@@ -1,33 +1,33 @@
-"""Training seeds chosen on validation: ``python -m bgap.select RUNS --group K --out DIR``.
+"""Training seeds chosen on validation: ``python -m bgap.select runs=RUNS group=K out=DIR``.
 
 A learner that trains ``K`` seeds and keeps the one its validation prefers. Per density and
 policy family, the run folders under ``RUNS`` (in the order of their training seeds) fall
 into consecutive groups of ``K``; each run's validation-chosen checkpoint plays
-``--episodes`` validation episodes of its own training traffic (seeds ``val_seed + k``, apart
+``episodes`` validation episodes of its own training traffic (seeds ``val_seed + k``, apart
 from the test's) beside the rule-based ego, and is scored by its half of the recipe
 objective (:func:`bgap.analysis.stats.policy_score`). The lowest score of each group is kept
 (the lower seed on a tie).
 
-Writes a copy of each kept run folder to ``--out`` (``<density>/<run>``, without its resume
+Writes a copy of each kept run folder to ``out`` (``<density>/<run>``, without its resume
 checkpoints: what ``bgap.evaluate models=[OUT]`` plays) and the table of every run's
-validation figures, score and group to ``--table`` (``selection.csv``, ``selection.md``).
+validation figures, score and group to ``table`` (``selection.csv``, ``selection.md``).
 The unit of such a learner is its group: ``G`` groups are ``G`` independent draws of it.
 """
 
 from __future__ import annotations
 
-import argparse
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import pandas as pd
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
 from bgap.analysis.stats import RULE_FLOOR, SHORT_PENALTY, STOCK_MARGIN, policy_score
-from bgap.common.cli import OneLineParser, positive, run
-from bgap.common.config import validate
-from bgap.common.errors import ConfigError
+from bgap.common.cli import older_command_line
+from bgap.common.config import app, load, validate
+from bgap.common.errors import ConfigError, check
 from bgap.common.runs import (
     CONFIG,
     MODEL,
@@ -43,7 +43,7 @@ from bgap.experiments.config import ExperimentConfig, compose
 from bgap.experiments.sweep import figures_with_rule, split_rule
 from bgap.runner.jobs import run_jobs
 
-__all__ = ["groups", "main", "markdown", "run_config", "runs", "select"]
+__all__ = ["SelectConfig", "groups", "main", "markdown", "run_config", "runs", "select"]
 
 SKIPPED = ("checkpoints", "tb")
 """What a kept run's copy leaves out: resume state and TensorBoard logs (evaluation reads
@@ -77,9 +77,9 @@ def groups(table: pd.DataFrame, k: int) -> pd.Series:
     for (density, policy), part in table.groupby(["density", "policy"]):
         if len(part) % k:
             raise ConfigError(
-                f"--group {k} does not divide the {len(part)} {policy} runs of {density} "
+                f"group={k} does not divide the {len(part)} {policy} runs of {density} "
                 f"(seeds {part.seed.tolist()}); train a multiple of {k} seeds, or give a "
-                f"--group that divides {len(part)}"
+                f"group= that divides {len(part)}"
             )
     return table.groupby(["density", "policy"]).cumcount() // k
 
@@ -154,34 +154,48 @@ def markdown(table: pd.DataFrame, k: int, episodes: int) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str] | None = None) -> None:
-    parser = OneLineParser(
-        prog="bgap.select",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("runs", help="a folder of run folders (bgap.train's run_dir=)")
-    parser.add_argument("--group", type=positive(int), default=3,
-                        help="seeds per group: the best of each is kept")  # fmt: skip
-    parser.add_argument("--episodes", type=positive(int), default=200,
-                        help="validation episodes per run")  # fmt: skip
-    parser.add_argument("--out", required=True, help="where the kept run folders are copied")
-    parser.add_argument("--table", default=None,
-                        help="where selection.csv and .md go (default: --out)")  # fmt: skip
-    parser.add_argument("--workers", type=positive(int), default=1,
-                        help="processes validating runs side by side")  # fmt: skip
-    args = parser.parse_args(argv)
-    out = Path(args.out)
-    table_dir = Path(args.table) if args.table else out
-    table = run(
-        "bgap.select",
-        lambda: select(Path(args.runs), out, table_dir, args.group, args.episodes, args.workers),
-        f"nothing was kept; remove {out} and rerun the command",
-    )
+@dataclass
+class SelectConfig:
+    """``python -m bgap.select runs=RUNS out=DIR``: keep the best of each group of seeds."""
+
+    runs: str = "???"
+    """A folder of run folders (bgap.train's ``run_dir=``)."""
+    out: str = "???"
+    """Where the kept run folders are copied."""
+    group: int = 3
+    """Seeds per group: the best of each is kept."""
+    episodes: int = 200
+    """Validation episodes per run."""
+    table: Optional[str] = None
+    """Where ``selection.csv`` and ``.md`` go; default ``out``."""
+    workers: int = 1
+    """Processes validating runs side by side."""
+
+    def __post_init__(self) -> None:
+        for key in ("group", "episodes", "workers"):
+            check(getattr(self, key) >= 1, key, getattr(self, key), "must be a whole number >= 1")
+
+
+SCHEMAS = ((None, "base_select", SelectConfig),)
+
+
+@app("select", "bgap.select", SCHEMAS, "nothing was kept; remove out= and rerun the command")
+def _hydra_main(dcfg: DictConfig) -> None:
+    cfg: SelectConfig = load(dcfg)
+    out = Path(cfg.out)
+    table_dir = Path(cfg.table) if cfg.table else out
+    table = select(Path(cfg.runs), out, table_dir, cfg.group, cfg.episodes, cfg.workers)
     kept = table[table.kept]
     for r in kept.itertuples():
         print(f"kept {r.density} {r.policy} group {r.group}: seed {r.seed} (score {r.score:.2f})")
     print(f"kept runs in {out}; table in {table_dir / 'selection.md'}")
+
+
+def main() -> None:
+    """The Hydra app. The older command line still reads: the runs folder first, then
+    ``--group``, ``--episodes``, ``--out``, ``--table`` and ``--workers``."""
+    older_command_line("runs")
+    _hydra_main()
 
 
 if __name__ == "__main__":
