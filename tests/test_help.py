@@ -48,10 +48,7 @@ COMMANDS = (
 MAX_LINES = 40
 
 
-ARGPARSE_COMMANDS = (
-    "bgap.parity",
-    "bgap.pipeline",
-)
+ARGPARSE_COMMANDS = ("bgap.pipeline",)
 HYDRA_COMMANDS = tuple(c for c in COMMANDS if c not in ARGPARSE_COMMANDS)
 """The commands whose ``--help`` Hydra would answer (the others parse with argparse)."""
 

@@ -573,15 +573,16 @@ def test_a_preset_is_rewritten_only_by_the_run_that_wrote_it(tmp_path):
 
 
 @pytest.mark.parametrize(
-    "name,default", [("parity", "outputs/parity"), ("figures", "outputs/figures")]
+    "name,default",
+    [("parity", "outputs/parity"), ("figures", "outputs/figures"), ("select", "???")],
 )
-def test_argparse_commands_write_under_outputs_by_default(name, default, monkeypatch, capsys):
+def test_commands_of_a_study_stage_write_under_outputs_by_default(name, default):
     """Run from the repository root, their default output is never the committed results/
-    (only the pipeline's stages write there, with an explicit --out)."""
-    import importlib
+    (only the pipeline's stages write there, with an explicit out=)."""
+    from bgap.analysis import figures
+    from bgap.common.config import compose
+    from bgap.experiments import parity, select
 
-    monkeypatch.setattr(sys, "argv", [f"bgap.{name}", "--help"])
-    with pytest.raises(SystemExit) as stop:
-        importlib.import_module(f"bgap.{name}").main()
-    shown = " ".join(capsys.readouterr().out.split())  # argparse wraps the help text
-    assert stop.value.code == 0 and f"(default: {default})" in shown, shown
+    schemas = {"parity": parity.SCHEMAS, "figures": figures.SCHEMAS, "select": select.SCHEMAS}
+    composed = compose(name, [], schemas[name])
+    assert composed.out == default if default != "???" else composed._get_node("out")._is_missing()

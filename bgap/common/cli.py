@@ -147,6 +147,14 @@ def bare_first_argument(*keys: str) -> None:
         sys.argv[i] = f"{key}={sys.argv[i]}"
 
 
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 HYDRA_OPTIONS = ("--help", "-h", "--hydra-help", "--cfg", "-c", "--info", "--resolve",
                  "--package", "-p", "--multirun", "-m", "--run", "-r", "--version")  # fmt: skip
 """Hydra's own command-line options: passed through as they are."""
@@ -168,7 +176,7 @@ def older_command_line(
     bare: list[str] = []
     key = None
     for arg in sys.argv[1:]:
-        value = not arg.startswith("-") and "=" not in arg
+        value = "=" not in arg and (not arg.startswith("-") or _is_number(arg))
         name = arg[2:].replace("-", "_") if arg.startswith("--") and "=" not in arg else None
         if arg in HYDRA_OPTIONS or (name is None and not value) or (name and arg[2:3] == "-"):
             args.append(arg)

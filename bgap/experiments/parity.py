@@ -4,24 +4,26 @@ Runs the same number of seeded episodes on highway-env (``backend=highway``) and
 vectorised simulator (``backend=vector``) for several mixes, with a fixed scripted ego
 policy, and compares per class the mean vehicle speed and lane changes per vehicle-minute,
 and the ego collision rate, with 95% confidence intervals. Writes ``parity.csv`` and
-``parity.png`` to ``--out``. Both backends are measured from per-frame states in the same
+``parity.png`` to ``out``. Both backends are measured from per-frame states in the same
 way (:func:`episode_stats`), from the trajectories :func:`bgap.sim.rollout.rollout` records.
 """
 
 from __future__ import annotations
 
-import argparse
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pandas as pd
+from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 from bgap.agents.policies import rollout
 from bgap.analysis.stats import t_interval, wilson_interval
-from bgap.common.cli import OneLineParser, positive
-from bgap.common.cli import run as run_cli
-from bgap.common.config import SEED_MAX, validate
+from bgap.common.cli import older_command_line
+from bgap.common.config import SEED_MAX, app, load, validate
 from bgap.common.errors import ConfigError, check
 from bgap.common.plotting import pyplot
 from bgap.common.runs import write_atomic
@@ -149,108 +151,103 @@ def plot(table: pd.DataFrame, path: Path) -> None:
     plt.close(fig)
 
 
-def main(argv: list[str] | None = None) -> None:
+@dataclass
+class ParityConfig:
+    """``python -m bgap.parity``: the backends' statistical comparison."""
 
-    parser = OneLineParser(
-        prog="bgap.parity",
-        description=__doc__.splitlines()[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("--env", default="dense", help="env preset (bgap/conf/env)")
-    parser.add_argument("--mixes", default="0,0.5,1", help="aggressive fractions, comma-separated")
-    parser.add_argument(
-        "--episodes", type=positive(int), default=200, help="episodes per backend and mix"
-    )
-    parser.add_argument(
-        "--duration",
-        type=positive(float),
-        default=None,
-        help="episode length [s]; default the env's",
-    )
-    parser.add_argument("--seed", type=int, default=0, help="episode k is seeded seed + k")
-    parser.add_argument(
-        "--out",
-        default="outputs/parity",
-        help="folder for episodes.csv, parity.csv and parity.png (the pipeline: results/parity)",
-    )
-    parser.add_argument(
-        "--backends", default="vector,highway", help="backends to play, comma-separated"
-    )
-    parser.add_argument(
-        "--fast",
-        action="store_true",
-        help="the vector backend in the fast mode (bgap.scenario.fast_mode: 10 Hz); with "
-        "--backends vector --reuse it is compared with the stored highway-env episodes",
-    )
-    parser.add_argument(
-        "--reuse",
-        action="store_true",
-        help="keep the other backends' rows of an existing episodes.csv (same settings)",
-    )
-    args = parser.parse_args(argv)
-    run_cli("bgap.parity", lambda: _parity(args),
-            f"the episodes played so far are in {args.out}/episodes.csv; add --reuse to keep "
-            "them")  # fmt: skip
+    env: str = "dense"
+    """The env preset (``bgap/conf/env``)."""
+    mixes: list[float] = field(default_factory=lambda: [0.0, 0.5, 1.0])
+    """Aggressive fractions, each in [0, 1]."""
+    episodes: int = 200
+    """Episodes per backend and mix."""
+    duration: Optional[float] = None
+    """Episode length [s]; default the env's."""
+    seed: int = 0
+    """Episode k is seeded seed + k."""
+    out: str = "outputs/parity"
+    """Folder for episodes.csv, parity.csv and parity.png (the pipeline: results/parity)."""
+    backends: list[str] = field(default_factory=lambda: ["vector", "highway"])
+    """Backends to play."""
+    fast: bool = False
+    """The vector backend in the fast mode (bgap.traffic.scenario.fast_mode: 10 Hz); with
+    ``backends=[vector] reuse=true`` it is compared with the stored highway-env episodes."""
+    reuse: bool = False
+    """Keep the other backends' rows of an existing episodes.csv (same settings)."""
+
+    def __post_init__(self) -> None:
+        check(self.episodes >= 1, "episodes", self.episodes, "must be a whole number >= 1")
+        if self.duration is not None:
+            check(math.isfinite(self.duration) and self.duration > 0, "duration", self.duration,
+                  "must be a finite number of seconds > 0")  # fmt: skip
+        check(all(0 <= m <= 1 for m in self.mixes), "mixes", self.mixes,
+              "every mix must lie in [0, 1]")  # fmt: skip
+        self.mixes = [float(m) + 0.0 for m in self.mixes]  # -0.0 is 0.0
+        unknown = sorted(set(self.backends) - {"vector", "highway"})
+        check(not unknown, "backends", self.backends, "use [vector], [highway] or [vector,highway]")
+        check(0 <= self.seed <= SEED_MAX - self.episodes, "seed", self.seed,
+              f"must lie in [0, {SEED_MAX} - episodes] (numpy's seeds)")  # fmt: skip
+
+
+SCHEMAS = ((None, "base_parity", ParityConfig),)
+
+
+@app("parity", "bgap.parity", SCHEMAS,
+     "the episodes played so far are in out/episodes.csv; add reuse=true to keep them")  # fmt: skip
+def _hydra_main(dcfg: DictConfig) -> None:
+    _parity(load(dcfg))
+
+
+def main() -> None:
+    """The Hydra app. The older command line still reads: ``--mixes 0,0.5,1``,
+    ``--backends vector,highway``, ``--fast``, ``--reuse`` and the other ``--options``."""
+    older_command_line(lists=("mixes", "backends"), flags=("fast", "reuse"))
+    _hydra_main()
 
 
 WRITTEN = ("episodes.csv", "parity.csv", "parity.png")
-"""What :func:`main` writes into ``--out``."""
-
-
-def _mixes(text: str) -> list[float]:
-    try:
-        mixes = [float(m) for m in text.split(",")]
-    except ValueError:
-        raise ConfigError(f"--mixes={text!r} is invalid: give fractions in [0, 1] separated "
-                          "by commas, e.g. 0,0.5,1") from None  # fmt: skip
-    check(all(0 <= m <= 1 for m in mixes), "--mixes", text, "every mix must lie in [0, 1]")
-    return [m + 0.0 for m in mixes]  # -0.0 is 0.0
+"""What :func:`main` writes into ``out``."""
 
 
 def _kept_rows(path: Path, backends: list[str], mixes: list[float], seeds: list[int]):
-    """``--reuse``: the other backends' rows of an earlier ``episodes.csv``, refused unless
+    """``reuse=true``: the other backends' rows of an earlier ``episodes.csv``, refused unless
     they are the same episodes (mixes and seeds) this run plays."""
     old = read_csv(path)
     missing = {"seed", "mix", "backend"} - set(old.columns)
     if missing:
         raise ConfigError(f"{path} is not a bgap.parity episode table (no {sorted(missing)} "
-                          "column); give another --out or leave out --reuse")  # fmt: skip
+                          "column); give another out= or leave out reuse=true")  # fmt: skip
     kept = old[~old.backend.isin(backends)]
     want = {(m, s) for m in mixes for s in seeds}
     for backend, rows in kept.groupby("backend"):
         if set(zip(rows.mix, rows.seed, strict=True)) != want:
             raise ConfigError(
-                f"{path} holds {backend} episodes of other mixes or seeds than --mixes "
-                f"{','.join(map(str, mixes))} --seed {seeds[0]} --episodes {len(seeds)}; give "
-                "those settings, or leave out --reuse"
+                f"{path} holds {backend} episodes of other mixes or seeds than mixes="
+                f"[{','.join(map(str, mixes))}] seed={seeds[0]} episodes={len(seeds)}; give "
+                "those settings, or leave out reuse=true"
             )
     return kept
 
 
-def _parity(args: argparse.Namespace) -> None:
+def _parity(args: ParityConfig) -> None:
     out = Path(args.out)
     if args.fast and out.resolve() == Path("results/parity").resolve():
         # its rows are labelled "vector": they must not replace the parity stage's results
-        raise ConfigError(f"--fast needs its own --out (got {args.out}): give a copy of it")
-    backends = args.backends.split(",")
-    unknown = sorted(set(backends) - {"vector", "highway"})
-    check(not unknown, "--backends", args.backends, "use vector, highway or vector,highway")
-    mixes = _mixes(args.mixes)
-    check(0 <= args.seed <= SEED_MAX - args.episodes, "--seed", args.seed,
-          f"must lie in [0, {SEED_MAX} - episodes] (numpy's seeds)")  # fmt: skip
+        raise ConfigError(f"fast=true needs its own out= (got {args.out}): give a copy of it")
+    backends, mixes = list(args.backends), list(args.mixes)
     seeds = list(range(args.seed, args.seed + args.episodes))
     earlier = [n for n in WRITTEN if (out / n).exists()]
     if earlier and not args.reuse:  # a rerun never overwrites an earlier result (the
         # pipeline's stage starts without them: DVC removes a stage's outputs first)
         raise ConfigError(f"{out} holds the results of an earlier run ({', '.join(earlier)}); "
-                          "give another --out, or --reuse to keep its episodes")  # fmt: skip
+                          "give another out=, or reuse=true to keep its episodes")  # fmt: skip
     frames = []
     if args.reuse and (out / "episodes.csv").exists():
         frames.append(_kept_rows(out / "episodes.csv", backends, mixes, seeds))
     compared = set(backends).union(*(set(f.backend) for f in frames))
-    check(compared == {"vector", "highway"}, "--backends", args.backends,
-          "parity compares both backends: give vector,highway, or one of them with --reuse "
-          "of an --out holding the other's episodes")  # fmt: skip
+    check(compared == {"vector", "highway"}, "backends", args.backends,
+          "parity compares both backends: give [vector,highway], or one of them with "
+          "reuse=true of an out= holding the other's episodes")  # fmt: skip
     with exclusive(out):
         for mix in tqdm(mixes, desc="mixes"):
             overrides = [f"env={args.env}", f"mix={mix}"]
