@@ -48,9 +48,8 @@ COMMANDS = (
 MAX_LINES = 40
 
 
-ARGPARSE_COMMANDS = ("bgap.pipeline",)
-HYDRA_COMMANDS = tuple(c for c in COMMANDS if c not in ARGPARSE_COMMANDS)
-"""The commands whose ``--help`` Hydra would answer (the others parse with argparse)."""
+HYDRA_COMMANDS = COMMANDS
+"""The commands whose ``--help`` Hydra would answer: every one (one dialect)."""
 
 
 def _run(command: str, args: list[str], capsys, monkeypatch) -> tuple[int, str]:

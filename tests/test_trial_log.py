@@ -78,13 +78,13 @@ def test_a_running_trial_is_not_kept(tmp_path):
 
 
 def test_a_log_is_restored_on_a_new_machine_whose_root_is_not_made_yet(tmp_path, monkeypatch):
-    """The documented command, from a fresh clone: --storage outputs/.../optuna.db, whose
+    """The documented command, from a fresh clone: storage=outputs/.../optuna.db, whose
     folders do not exist yet."""
     storage = _searched(tmp_path, trials=2)
     trial_log.save(storage, "learner-dqn", tmp_path / "log.json")
     monkeypatch.chdir(tmp_path)
     db = "outputs/pipeline/sweeps/optuna.db"
-    main(["trials", "restore", "log.json", "--storage", db])
+    main(["trials=restore", "log=log.json", f"storage={db}"])
     restored = optuna.load_study(study_name="learner-dqn", storage=f"sqlite:///{tmp_path / db}")
     assert len(restored.trials) == 2
 
@@ -118,12 +118,12 @@ def test_a_log_fills_only_a_database_that_lacks_its_study(tmp_path):
     [
         (["save", "log.json", "--storage", "missing.db", "--study", "x"], "does not exist"),
         (["save", "log.json", "--storage", "lost.db", "--study", "other"], "no study 'other'"),
-        (["save", "log.json", "--storage", "lost.db"], "needs --study"),
+        (["save", "log.json", "--storage", "lost.db"], "needs study=NAME"),
         (["restore", "lost.db", "--storage", "new.db"], "is not a trial log"),
-        (["keep", "log.json", "--storage", "lost.db"], "invalid choice"),
+        (["keep", "log.json", "--storage", "lost.db"], "is invalid: use save or restore"),
         (
             ["save", "log.json", "--storage", "postgresql://x@127.0.0.1:1/x", "--study", "x"],
-            "--storage='postgresql://x@127.0.0.1:1/x' cannot be opened",
+            "storage='postgresql://x@127.0.0.1:1/x' cannot be opened",
         ),  # fmt: skip
     ],
 )

@@ -27,6 +27,7 @@ if __name__ == "__main__":  # the kernels every bgap command computes with, befo
 
 import argparse
 import os
+import sys
 import tempfile
 import time
 from collections.abc import Callable
@@ -40,12 +41,14 @@ from bgap.cmetric.centrality import Scene, centralities
 from bgap.cmetric.io import load_trajectories
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.reference import centralities_networkx
-from bgap.common.cli import OneLineParser, positive
 from bgap.common.config import validate
 from bgap.common.presets import load_preset, preset_path
 from bgap.datasets.config import compose as compose_scene
 from bgap.experiments.config import compose as compose_training
 from bgap.traffic.scenario import env_config, fast_mode
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script: tools.*
+from tools.cli import OneLineParser, positive  # noqa: E402
 
 
 def steps_per_second(env, seconds: float, seed: int = 0) -> float:

@@ -29,9 +29,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from bgap.common.cli import OneLineParser, run
+from bgap.common.cli import run
 from bgap.common.errors import ConfigError
-from bgap.common.runs import CHECKPOINT_STATE, CONFIG
+from bgap.common.runs import CHECKPOINT_STATE, COMMAND, CONFIG
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script: tools.*
+from tools.cli import OneLineParser  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 """The repository (this file is tools/relock.py)."""
@@ -333,7 +336,11 @@ def _same(a: Path, b: Path) -> bool:
     ``models.csv`` and the zoo's cards copy from it (:func:`_records_kept`). Likewise a
     training checkpoint's ``state.pkl`` (counters, running statistics, the environments'
     state), which may gain fields that later code keeps, and SB3's replay buffer
-    (``replay.pkl``), compared by its fields (:func:`_kept`)."""
+    (``replay.pkl``), compared by its fields (:func:`_kept`). A ``command.txt`` names the
+    same program: its arguments follow the stage's command, which the lock records."""
+    if a.name == b.name == COMMAND:  # the command that made it: the stage's cmd, whose
+        # form may change with the code (the lock records it); the program must be the same
+        return a.read_text().split()[:3] == b.read_text().split()[:3]
     if a.name == CONFIG and b.name == CONFIG:
         return _kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
     if a.name == b.name == MODELS:

@@ -10,9 +10,7 @@ one line and exit status 2. Errors that are not known mistakes (bugs) keep their
 
 from __future__ import annotations
 
-import argparse
 import errno
-import math
 import os
 import shlex
 import signal
@@ -202,24 +200,3 @@ def older_command_line(
     sys.argv[1:] = args
 
 
-class OneLineParser(argparse.ArgumentParser):
-    """argparse for the commands that take ``--options`` (parity, bench, figures,
-    pipeline): a bad option is one line and exit status 2, as with every other command."""
-
-    def error(self, message: str) -> NoReturn:
-        fail(self.prog, f"{message} (python -m {self.prog} --help lists the options)")
-
-
-def positive(kind: type = float) -> Callable[[str], Any]:
-    """An argparse type: a finite number > 0 (``kind``: float or int)."""
-
-    def parse(text: str) -> Any:
-        try:
-            value = kind(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-        if not (math.isfinite(value) and value > 0):
-            raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
-        return value
-
-    return parse

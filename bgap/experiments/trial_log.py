@@ -47,10 +47,10 @@ def _load(storage: str, study: str) -> optuna.Study:
     if db is not None and not db.is_file():
         raise ConfigError(f"{db} does not exist; give the search's optuna.db")
     try:
-        return optuna.load_study(study_name=study, storage=open_storage(storage, "--storage"))
+        return optuna.load_study(study_name=study, storage=open_storage(storage, "storage"))
     except KeyError:
         raise ConfigError(
-            f"{storage} holds no study {study!r}; check --storage and --study "
+            f"{storage} holds no study {study!r}; check storage= and study= "
             "(optuna-dashboard or optuna.get_all_study_names list them)"
         ) from None
 
@@ -142,7 +142,7 @@ def _restore(storage: str, log: dict[str, Any]) -> int:
         db.parent.mkdir(parents=True, exist_ok=True)
     s = optuna.create_study(
         study_name=name,
-        storage=open_storage(storage, "--storage"),
+        storage=open_storage(storage, "storage"),
         directions=[d.lower() for d in log["directions"]],
         load_if_exists=True,
     )
