@@ -16,16 +16,11 @@ import pytest
 import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from bgap.agents.batched import (
-    BatchedDQN,
-    Schedule,
-    StackedAdam,
-    StackedReplay,
-)
+from bgap.agents.batched import BatchedDQN, Schedule, StackedReplay
 from bgap.agents.config import AgentConfig
 from bgap.agents.dqn import DQN
 from bgap.agents.per import PrioritizedReplayBuffer, PrioritizedSamples
-from bgap.agents.stacked_qnets import initial_parameters
+from bgap.agents.stacked_qnets import StackedAdam, initial_parameters
 
 ROOT = Path(__file__).resolve().parent.parent
 OBS = gym.spaces.Box(-1.0, 1.0, (5, 5), np.float32)

@@ -526,7 +526,7 @@ def test_collisions_split_by_fault_and_by_time():
     """A hand-made cell of 10 episodes: 4 collisions, 2 at fault (a rear-end and a lane
     change), 1 rear-ended, 1 without partner; 1 in the first 3 steps. The table reads 40%,
     20%, 10%, 10% and 40% (none in the first step)."""
-    from bgap.analysis.tables import fault_markdown
+    from bgap.analysis.crashes import fault_markdown
 
     df = _study(lambda *a: 0.0, seeds=1, episodes=10, radii=(180.0,))
     df = df[(df.family == "behavior_rich") & (df.mix == PAPER_MIXES[0])].copy()

@@ -16,8 +16,8 @@ from bgap.common.errors import ConfigError
 from bgap.experiments.config import compose
 from bgap.experiments.evaluate import policy_specs
 from bgap.experiments.select import groups, select
-from bgap.experiments.sweep import validation_figures
 from bgap.experiments.train import train
+from bgap.experiments.validation import validation_figures
 
 
 def _f(pct: float, per100: float, speed: float) -> dict[str, float]:

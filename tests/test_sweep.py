@@ -94,15 +94,15 @@ def test_sweep_of_the_default_policy_trains_and_scores_it_in_stock_traffic(tmp_p
     import yaml
 
     from bgap.agents.policies import baseline
-    from bgap.experiments.sweep import _validation
+    from bgap.experiments.validation import validation_rates
 
     cfg = _cfg(tmp_path, "trials=1", "mode=single", "env=dense", "policy=default")
     study = sweep(cfg, progress=False)
     trial = study.trials[0]
     run = yaml.safe_load((Path(trial.user_attrs["run_dir"]) / "config.yaml").read_text())
     assert run["policy"] == "default" and run["behavior"]["name"] == "stock"
-    # _validation swaps in the training traffic of cfg.policy itself (train.training_config)
-    crash, speed = _validation(baseline("idle"), cfg, cfg.sweep_eval_episodes)
+    # validation_rates swaps in the training traffic of cfg.policy itself (train.training_config)
+    crash, speed = validation_rates(baseline("idle"), cfg, cfg.sweep_eval_episodes)
     assert trial.user_attrs["idle_collision_pct"] == crash
     assert trial.user_attrs["idle_avg_speed"] == pytest.approx(speed)
 

@@ -422,8 +422,8 @@ def _check_best_checkpoints(cfg, runs: Path) -> None:
     best_model.zip replays that validation's figures, and evaluation plays best_model.zip
     unless checkpoint=last."""
     from bgap.experiments.evaluate import policy_specs
-    from bgap.experiments.sweep import validation_episodes
     from bgap.experiments.training import training_config
+    from bgap.experiments.validation import validation_episodes
 
     kept = sorted(p.parent for p in runs.glob("*/best.json"))
     assert len(kept) == 4

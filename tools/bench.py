@@ -295,10 +295,14 @@ def bench_evaluate(seconds: float, episodes: int = 100) -> None:
         finished = 1 - ep.steps.mean() / ep.steps.max()  # env-steps a full batch wastes
         return played / (time.perf_counter() - start), finished
 
-    print(f"{episodes} episodes per batch, episodes/s; 'ended early': the share of the "
-          "batch's env-steps after an env's episode ended")  # fmt: skip
-    print(f"{'scenario':<9}{'policy':<9}{'simulated on':>14}{'skipped':>10}{'ratio':>8}"
-          f"{'ended early':>13}")  # fmt: skip
+    print(
+        f"{episodes} episodes per batch, episodes/s; 'ended early': the share of the "
+        "batch's env-steps after an env's episode ended"
+    )
+    print(
+        f"{'scenario':<9}{'policy':<9}{'simulated on':>14}{'skipped':>10}{'ratio':>8}"
+        f"{'ended early':>13}"
+    )
     try:
         for density in ("dense", "sparse"):
             cfg = validate(compose_training("train", [f"env={density}"]))
@@ -307,12 +311,18 @@ def bench_evaluate(seconds: float, episodes: int = 100) -> None:
                 env = make_training_env(cfg, 1, seed=0)
                 model = build_model(cfg, env, Path(tmp))
                 rollout(config, model, range(2), "vector")  # compile / load the kernels
-                for name, policy in (("idle", "idle"), ("rule", "rule"), ("random", "random"),
-                                     ("dqn", model)):  # fmt: skip
+                for name, policy in (
+                    ("idle", "idle"),
+                    ("rule", "rule"),
+                    ("random", "random"),
+                    ("dqn", model),
+                ):
                     base, _ = rate(config, policy, False)
                     fast, early = rate(config, policy, True)
-                    print(f"{density:<9}{name:<9}{base:>14.1f}{fast:>10.1f}{fast / base:>8.2f}"
-                          f"{early:>13.1%}")  # fmt: skip
+                    print(
+                        f"{density:<9}{name:<9}{base:>14.1f}{fast:>10.1f}{fast / base:>8.2f}"
+                        f"{early:>13.1%}"
+                    )
     finally:
         VectorHighway.skips_finished = True
 
@@ -392,9 +402,13 @@ def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[fl
     obs, _ = venv.reset(seed=list(range(k * e)))
     space = venv.single_observation_space
     learner = BatchedDQN(
-        cfg.agent, Schedule(e, cfg.profile.train_steps, cfg.agent.exploration_decay_steps),
-        list(range(k)), int(np.prod(space.shape)), 5, device=device,
-    )  # fmt: skip
+        cfg.agent,
+        Schedule(e, cfg.profile.train_steps, cfg.agent.exploration_decay_steps),
+        list(range(k)),
+        int(np.prod(space.shape)),
+        5,
+        device=device,
+    )
     members = np.arange(k)
     obs = obs.reshape(k, e, *space.shape)
 
@@ -405,8 +419,15 @@ def _batched_rate(k: int, seconds: float, device: str | None = None) -> tuple[fl
         final = final_observations(new, term | trunc, info)
         learner.num_timesteps += e
         shape = (k, e)
-        learner.observe(members, obs, final.reshape(k, e, -1), actions, rewards.reshape(shape),
-                        term.reshape(shape), trunc.reshape(shape))  # fmt: skip
+        learner.observe(
+            members,
+            obs,
+            final.reshape(k, e, -1),
+            actions,
+            rewards.reshape(shape),
+            term.reshape(shape),
+            trunc.reshape(shape),
+        )
         obs = new.reshape(obs.shape)
         learner.train(members)
 
@@ -440,8 +461,10 @@ def bench_learn(seconds: float, ks: tuple[int, ...] = (1, 4, 10, 20), threads: i
     sb3_updates, sb3_steps = _sb3_rate(seconds)
     torch.set_num_threads(threads)
     device = default_device()
-    print(f"dense traffic, one gradient update per transition; batched learner on {device}, "
-          f"{threads} torch threads")  # fmt: skip
+    print(
+        f"dense traffic, one gradient update per transition; batched learner on {device}, "
+        f"{threads} torch threads"
+    )
     print(f"{'learner':<16}{'updates/s':>11}{'transitions/s':>15}{'study 40x180k':>15}")
     print(
         f"{'SB3 DQN':<16}{sb3_updates:>11.0f}{sb3_steps:>15.0f}{study / sb3_updates / 3600:>14.1f}h"
@@ -520,18 +543,30 @@ def bench_cluster(seconds: float, trainings: int = 4) -> None:
         cluster.wait_for_nodes()
         up = time.perf_counter() - start
         with tempfile.TemporaryDirectory() as tmp:
-            cfg = validate(compose_training("train", [
-                "profile=tiny", f"profile.train_steps={steps}", "env=sparse", "backend=vector",
-                f"seeds=[{','.join(map(str, range(trainings)))}]", f"run_dir={tmp}/runs",
-                f"cluster.address={cluster.address}",
-            ]))  # fmt: skip
+            cfg = validate(
+                compose_training(
+                    "train",
+                    [
+                        "profile=tiny",
+                        f"profile.train_steps={steps}",
+                        "env=sparse",
+                        "backend=vector",
+                        f"seeds=[{','.join(map(str, range(trainings)))}]",
+                        f"run_dir={tmp}/runs",
+                        f"cluster.address={cluster.address}",
+                    ],
+                )
+            )
             start = time.perf_counter()
             train_all(member_configs(cfg), progress=False)
             walls[nodes] = time.perf_counter() - start
         cluster.shutdown()
-        print(f"{nodes} node(s): {trainings} trainings of {steps} steps in {walls[nodes]:.1f} s "
-              f"({trainings * steps / walls[nodes]:.0f} steps/s; the cluster started in "
-              f"{up:.1f} s)", flush=True)  # fmt: skip
+        print(
+            f"{nodes} node(s): {trainings} trainings of {steps} steps in {walls[nodes]:.1f} s "
+            f"({trainings * steps / walls[nodes]:.0f} steps/s; the cluster started in "
+            f"{up:.1f} s)",
+            flush=True,
+        )
     print(f"2 nodes / 1 node throughput: {walls[1] / walls[2]:.2f}x")
 
 
@@ -563,8 +598,9 @@ def bench_side(seconds: float, trainings: int = 2) -> None:
     for name, pool in pools.items():
         with pool:
             rates.append(sum(pool.map(_transitions_per_second, [seconds] * trainings)))
-        print(f"{trainings} trainings side by side, {name}: {rates[-1]:.0f} transitions/s",
-              flush=True)  # fmt: skip
+        print(
+            f"{trainings} trainings side by side, {name}: {rates[-1]:.0f} transitions/s", flush=True
+        )
     print(f"share / default: {rates[1] / rates[0]:.2f}x")
 
 

@@ -25,8 +25,12 @@ def markdown(rows: list[dict], title: str) -> str:
     wide = cell.pivot_table(
         index=["setting", "seeds"], columns="method", values="v", aggfunc="first"
     )
-    lines = [f"### {title}", "", "| setting | seeds | " + " | ".join(wide.columns) + " |",
-             "|---|---|" + "---|" * len(wide.columns)]  # fmt: skip
+    lines = [
+        f"### {title}",
+        "",
+        "| setting | seeds | " + " | ".join(wide.columns) + " |",
+        "|---|---|" + "---|" * len(wide.columns),
+    ]
     for (setting, seeds), row in wide.iterrows():
         lines.append(f"| {setting} | {seeds} | " + " | ".join(row.fillna("")) + " |")
     return "\n".join(lines) + "\n"

@@ -182,8 +182,14 @@ def replay_cells(params: dict) -> str:
     ``density:<root>/replay/<table>/trajectories.parquet`` (evaluate's ``grid.replays``;
     DVC builds no list from a dict, so params.yaml spells it out)."""
     tables = params["replay"]["tables"]
-    return "[" + ",".join(f"{t['density']}:{params['root']}/replay/{k}/trajectories.parquet"
-                          for k, t in tables.items()) + "]"  # fmt: skip
+    return (
+        "["
+        + ",".join(
+            f"{t['density']}:{params['root']}/replay/{k}/trajectories.parquet"
+            for k, t in tables.items()
+        )
+        + "]"
+    )
 
 
 def rehearsal(params: dict) -> None:
@@ -244,8 +250,9 @@ def _rehearse(tree: Path, stages: list[str], log: Path) -> None:
         ):
             done = subprocess.run(cmd, cwd=tree, env=env, stdout=out, stderr=subprocess.STDOUT)
             if done.returncode != 0:
-                raise ConfigError(f"setting up the rehearsal in {tree} failed "
-                                  f"({' '.join(cmd[:3])}): see {log}")  # fmt: skip
+                raise ConfigError(
+                    f"setting up the rehearsal in {tree} failed ({' '.join(cmd[:3])}): see {log}"
+                )
         # one stage at a time, each after the stages it reads (the pipeline's graph), on the
         # committed presets: a stage that writes a preset (the recipe's unseeded sweep) runs
         # last, so that no other stage reads a rehearsal's preset instead of the checkout's
@@ -356,10 +363,11 @@ def _same(a: Path, b: Path) -> bool:
         if za.namelist() != zb.namelist():
             return False
         return all(
-            _sb3_data(za.read(n)) == _sb3_data(zb.read(n)) if n == "data"
+            _sb3_data(za.read(n)) == _sb3_data(zb.read(n))
+            if n == "data"
             else za.read(n) == zb.read(n)
             for n in za.namelist()
-        )  # fmt: skip
+        )
 
 
 MODELS = "models.csv"

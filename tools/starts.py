@@ -86,9 +86,17 @@ def main(episodes: int = 2000, highway_episodes: int = 100) -> None:
         for periods in (1, 3):
             start = time.perf_counter()
             safe = fn(periods)
-            rows.append({"density": density, "mix": mix, "traffic": traffic, "starts": starts,
-                         "periods held": periods, **summary(safe),
-                         "s": time.perf_counter() - start})  # fmt: skip
+            rows.append(
+                {
+                    "density": density,
+                    "mix": mix,
+                    "traffic": traffic,
+                    "starts": starts,
+                    "periods held": periods,
+                    **summary(safe),
+                    "s": time.perf_counter() - start,
+                }
+            )
 
     for density, n in DENSITIES.items():
         for mix in MIXES:

@@ -44,11 +44,16 @@ import gymnasium as gym
 import numpy as np
 import torch
 import torch.nn.functional as F
-from torch.optim.adam import adam
 
 from bgap.agents.config import AgentConfig
 from bgap.agents.per import SumTrees, check_replay_memory
-from bgap.agents.stacked_qnets import default_device, initial_parameters, q_values, stacking_layout
+from bgap.agents.stacked_qnets import (
+    StackedAdam,
+    default_device,
+    initial_parameters,
+    q_values,
+    stacking_layout,
+)
 from bgap.common.errors import check
 
 
@@ -66,72 +71,22 @@ class Schedule:
     """SB3's default: the linear schedule reaches its final epsilon at 10% of the budget."""
 
 
-class StackedAdam:
-    """torch.optim.Adam (betas 0.9, 0.999, eps 1e-8: SB3's optimizer) on stacked parameters
-    with one step count per member; members outside ``mask`` keep their parameters and
-    moments unchanged.
-
-    When all members share a step count (the lock step of a training), the update is
-    torch's single-tensor Adam (``torch.optim.adam._single_tensor_adam``) written out in
-    place on buffers kept between steps: torch's foreach path, equal to it bit for bit,
-    allocates four tensors of every parameter's size per step, and on a CPU those
-    allocations (fresh pages each time) cost more than the arithmetic
-    (``python tools/bench.py learn``). A test holds it to torch's ``adam`` bit for bit.
-    Members at different counts take torch's functional update per count."""
-
-    def __init__(self, params: list[torch.Tensor], lr: float, betas=(0.9, 0.999), eps=1e-8):
-        self.lr, (self.beta1, self.beta2), self.eps = lr, betas, eps
-        self.steps = np.zeros(params[0].shape[0], dtype=np.int64)
-        self.exp_avg = [torch.zeros_like(p) for p in params]
-        self.exp_avg_sq = [torch.zeros_like(p) for p in params]
-        self._denom = [torch.empty_like(p) for p in params]
-
-    def step(self, params: list[torch.Tensor], grads: list[torch.Tensor], mask: np.ndarray):
-        on = np.flatnonzero(mask)
-        counts = np.unique(self.steps[on])
-        if len(on) == len(self.steps) and len(counts) == 1:
-            self._step_all(params, grads, int(counts[0]) + 1)
-            self.steps += 1
-            return
-        for count in counts:
-            members = on[self.steps[on] == count]
-            idx = torch.as_tensor(members, device=params[0].device)
-            p, m, v = ([t[idx] for t in ts] for ts in (params, self.exp_avg, self.exp_avg_sq))
-            step = [torch.tensor(float(count)) for _ in p]
-            with torch.no_grad():
-                adam(
-                    p, [g[idx] for g in grads], m, v, [], step, foreach=True, amsgrad=False,
-                    beta1=self.beta1, beta2=self.beta2, lr=self.lr, weight_decay=0.0,
-                    eps=self.eps, maximize=False,
-                )  # fmt: skip
-                for full, sub in zip((*params, *self.exp_avg, *self.exp_avg_sq),
-                                     (*p, *m, *v), strict=True):  # fmt: skip
-                    full[idx] = sub
-            self.steps[members] += 1
-
-    def _step_all(self, params: list[torch.Tensor], grads: list[torch.Tensor], step: int):
-        """Step ``step`` (1-based) of every member: _single_tensor_adam's lines, in place."""
-        bias_correction1 = 1 - self.beta1**step
-        bias_correction2_sqrt = (1 - self.beta2**step) ** 0.5
-        step_size = self.lr / bias_correction1
-        with torch.no_grad():
-            for p, g, m, v, denom in zip(params, grads, self.exp_avg, self.exp_avg_sq,
-                                         self._denom, strict=True):  # fmt: skip
-                m.lerp_(g, 1 - self.beta1)
-                v.mul_(self.beta2).addcmul_(g, g, value=1 - self.beta2)
-                torch.sqrt(v, out=denom).div_(bias_correction2_sqrt).add_(self.eps)
-                p.addcdiv_(m, denom, value=-step_size)
-
-
 class StackedReplay:
     """K prioritized replay buffers (:class:`bgap.agents.per.PrioritizedReplayBuffer`'s
     algorithm and SB3's layout: ``buffer_size // E`` positions x E envs, flat index
     position * E + env) as stacked numpy arrays."""
 
     def __init__(
-        self, k: int, n_envs: int, buffer_size: int, obs_dim: int, alpha: float, beta0: float,
-        prioritized: bool, eps: float = 1e-6,
-    ) -> None:  # fmt: skip
+        self,
+        k: int,
+        n_envs: int,
+        buffer_size: int,
+        obs_dim: int,
+        alpha: float,
+        beta0: float,
+        prioritized: bool,
+        eps: float = 1e-6,
+    ) -> None:
         self.k, self.n_envs = k, n_envs
         self.size = max(buffer_size // n_envs, 1)  # SB3's ReplayBuffer
         check_replay_memory(buffer_size, obs_dim, k)
@@ -149,8 +104,18 @@ class StackedReplay:
         self.alpha, self.beta0, self.eps, self.prioritized = alpha, beta0, eps, prioritized
         self.trees = SumTrees(k, self.size * n_envs)  # the priorities, for O(log N) sampling
 
-    ARRAYS = ("obs", "next_obs", "actions", "rewards", "dones", "timeouts", "priorities",
-              "max_priority", "pos", "full")  # fmt: skip
+    ARRAYS = (
+        "obs",
+        "next_obs",
+        "actions",
+        "rewards",
+        "dones",
+        "timeouts",
+        "priorities",
+        "max_priority",
+        "pos",
+        "full",
+    )
 
     def add(self, members: np.ndarray, obs, next_obs, actions, rewards, dones, timeouts) -> None:
         """One vector step of each of ``members`` (arrays (len(members), E, ...))."""
@@ -158,8 +123,14 @@ class StackedReplay:
         entering = (self.max_priority[members] ** self.alpha)[:, None]  # each member's E envs
         self.priorities[members, pos] = entering
         self.trees.set(members, pos[:, None] * self.n_envs + np.arange(self.n_envs), entering)
-        new = {"obs": obs, "next_obs": next_obs, "actions": actions, "rewards": rewards,
-               "dones": dones, "timeouts": timeouts}  # fmt: skip
+        new = {
+            "obs": obs,
+            "next_obs": next_obs,
+            "actions": actions,
+            "rewards": rewards,
+            "dones": dones,
+            "timeouts": timeouts,
+        }
         for name, value in new.items():
             getattr(self, name)[members, pos] = value
         self.pos[members] = (pos + 1) % self.size
@@ -265,8 +236,12 @@ class BatchedDQN:
     ) -> None:
         check(len(seeds) >= 1, "seeds", seeds, "a batched learner needs at least one member")
         check(not sb3_streams or len(seeds) == 1, "seeds", seeds, "sb3_streams: one member")
-        check(agent.train_freq == 1, "agent.train_freq", agent.train_freq,
-              "the batched learner trains after every vector step (train_freq=1)")  # fmt: skip
+        check(
+            agent.train_freq == 1,
+            "agent.train_freq",
+            agent.train_freq,
+            "the batched learner trains after every vector step (train_freq=1)",
+        )
         self.agent, self.schedule, self.seeds = agent, schedule, list(seeds)
         self.k, self.n_envs, self.n_actions = len(seeds), schedule.n_envs, n_actions
         self.device = torch.device(device) if device is not None else default_device()
@@ -276,9 +251,14 @@ class BatchedDQN:
         self.target = [p.clone() for p in self.params]
         self.optimizer = StackedAdam(self.params, agent.learning_rate)
         self.replay = StackedReplay(
-            self.k, self.n_envs, agent.buffer_size, obs_dim, agent.per_alpha, agent.per_beta0,
+            self.k,
+            self.n_envs,
+            agent.buffer_size,
+            obs_dim,
+            agent.per_alpha,
+            agent.per_beta0,
             prioritized=agent.replay == "per",
-        )  # fmt: skip
+        )
         self.num_timesteps = np.zeros(self.k, dtype=np.int64)
         self.n_calls = np.zeros(self.k, dtype=np.int64)
         self.n_updates = np.zeros(self.k, dtype=np.int64)
@@ -329,8 +309,9 @@ class BatchedDQN:
         dones = (terminated | truncated).astype(np.float32)
         timeouts = (truncated & ~terminated).astype(np.float32)
         flat = (len(members), self.n_envs, -1)
-        self.replay.add(members, obs.reshape(flat), next_obs.reshape(flat), actions, rewards,
-                        dones, timeouts)  # fmt: skip
+        self.replay.add(
+            members, obs.reshape(flat), next_obs.reshape(flat), actions, rewards, dones, timeouts
+        )
         self.n_calls[members] += 1
         every = max(self.agent.target_update_interval // self.n_envs, 1)
         copy = members[self.n_calls[members] % every == 0]
@@ -451,11 +432,18 @@ class BatchedDQN:
         }
 
     def load_member_state(self, k: int, state: dict[str, Any]) -> None:
-        check(state["seed"] == self.seeds[k], "seed", self.seeds[k],
-              f"the checkpoint is of seed {state['seed']}")  # fmt: skip
-        for name, tensors in (("params", self.params), ("target", self.target),
-                              ("exp_avg", self.optimizer.exp_avg),
-                              ("exp_avg_sq", self.optimizer.exp_avg_sq)):  # fmt: skip
+        check(
+            state["seed"] == self.seeds[k],
+            "seed",
+            self.seeds[k],
+            f"the checkpoint is of seed {state['seed']}",
+        )
+        for name, tensors in (
+            ("params", self.params),
+            ("target", self.target),
+            ("exp_avg", self.optimizer.exp_avg),
+            ("exp_avg_sq", self.optimizer.exp_avg_sq),
+        ):
             saved = state[name] if name in ("params", "target") else state["adam"][name]
             for t, s in zip(tensors, saved, strict=True):
                 if t[k].shape != s.shape:

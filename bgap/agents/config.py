@@ -80,13 +80,24 @@ class AgentConfig:
     def __post_init__(self) -> None:
         check(self.algo in ALGOS, "agent.algo", self.algo, f"use one of {', '.join(ALGOS)}")
         check(self.loss in ("mse", "huber"), "agent.loss", self.loss, "use mse or huber")
-        check(all(width >= 1 for width in self.net_arch), "agent.net_arch", self.net_arch,
-              "every layer needs a width >= 1 ([] for no hidden layer)")  # fmt: skip
-        check(self.extractor in EXTRACTORS, "agent.extractor", self.extractor,
-              f"use one of {', '.join(EXTRACTORS)}")  # fmt: skip
-        check(self.attention_heads >= 1 and self.attention_dim % self.attention_heads == 0,
-              "agent.attention_heads", self.attention_heads,
-              f"must be >= 1 and divide agent.attention_dim={self.attention_dim}")  # fmt: skip
+        check(
+            all(width >= 1 for width in self.net_arch),
+            "agent.net_arch",
+            self.net_arch,
+            "every layer needs a width >= 1 ([] for no hidden layer)",
+        )
+        check(
+            self.extractor in EXTRACTORS,
+            "agent.extractor",
+            self.extractor,
+            f"use one of {', '.join(EXTRACTORS)}",
+        )
+        check(
+            self.attention_heads >= 1 and self.attention_dim % self.attention_heads == 0,
+            "agent.attention_heads",
+            self.attention_heads,
+            f"must be >= 1 and divide agent.attention_dim={self.attention_dim}",
+        )
         check(self.n_quantiles >= 1, "agent.n_quantiles", self.n_quantiles, "must be >= 1")
         check(self.n_steps >= 2, "agent.n_steps", self.n_steps, "must be >= 2")
         check(self.n_epochs >= 1, "agent.n_epochs", self.n_epochs, "must be >= 1")
@@ -117,8 +128,12 @@ def observation_options(options: list[str], key: str = "agent.observation") -> l
     ConfigError naming the unknown or repeated one."""
     options = list(options)
     for option in options:
-        check(option in OBSERVATION_OPTIONS, key, option,
-              f"is not an observation option; use some of {list(OBSERVATION_OPTIONS)} (or "
-              "the presets observation=paper|ttc|rule|ttc_rule)")  # fmt: skip
+        check(
+            option in OBSERVATION_OPTIONS,
+            key,
+            option,
+            f"is not an observation option; use some of {list(OBSERVATION_OPTIONS)} (or "
+            "the presets observation=paper|ttc|rule|ttc_rule)",
+        )
     check(len(set(options)) == len(options), key, options, "names an option twice")
     return [option for option in OBSERVATION_OPTIONS if option in options]

@@ -51,8 +51,9 @@ def stack_infos(infos: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
 
 def _checkpoint_folders(run_dir: Path) -> tuple[Path, Path, Path]:
-    return tuple(Path(run_dir) / name for name in ("checkpoints", "checkpoints.next",
-                                                    "checkpoints.old"))  # fmt: skip
+    return tuple(
+        Path(run_dir) / name for name in ("checkpoints", "checkpoints.next", "checkpoints.old")
+    )
 
 
 def recover_checkpoint(run_dir: Path) -> None:
@@ -282,10 +283,13 @@ def plot_learning_curves(run_dir: Path) -> Path | None:
     fig, axes = plt.subplots(1, 3, figsize=(11, 3.2))
     for ax, (key, label) in zip(
         axes,
-        [("collision_pct", "collisions [% episodes]"), ("avg_speed", "mean speed [m/s]"),
-         ("return", "return")],
+        [
+            ("collision_pct", "collisions [% episodes]"),
+            ("avg_speed", "mean speed [m/s]"),
+            ("return", "return"),
+        ],
         strict=True,
-    ):  # fmt: skip
+    ):
         ax.plot(x, ev[key], "o-", ms=3, label="policy")
         # a running mean over five evaluations: single evaluations are noisy
         ax.plot(x, ev[key].rolling(5, min_periods=1).mean(), color="k", lw=1, label="mean of 5")

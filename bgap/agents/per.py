@@ -171,8 +171,14 @@ class SumTrees:
         of repeated leaves, the last value stays (numpy's fancy assignment)."""
         leaves = np.asarray(leaves, dtype=np.int64)
         values = np.broadcast_to(np.asarray(values, dtype=np.float64), leaves.shape)
-        _set(self.sum, self.min, np.asarray(members, dtype=np.int64), leaves,
-             np.ascontiguousarray(values), self.capacity)  # fmt: skip
+        _set(
+            self.sum,
+            self.min,
+            np.asarray(members, dtype=np.int64),
+            leaves,
+            np.ascontiguousarray(values),
+            self.capacity,
+        )
 
     def rebuild(self, member: int, values: np.ndarray) -> None:
         """Member ``member``'s leaves from a flat array of ``n`` values (a resumed replay)."""

@@ -90,8 +90,14 @@ def load_model(spec: str | Path) -> Any:
 
     from bgap.agents.dqn import DQN
 
-    classes = {"dqn": DQN, "ppo": sb3.PPO, "a2c": sb3.A2C, "sac": sb3.SAC, "td3": sb3.TD3,
-               "qrdqn": _qrdqn}  # fmt: skip
+    classes = {
+        "dqn": DQN,
+        "ppo": sb3.PPO,
+        "a2c": sb3.A2C,
+        "sac": sb3.SAC,
+        "td3": sb3.TD3,
+        "qrdqn": _qrdqn,
+    }
     algo, _, rest = str(spec).partition(":")
     named = bool(rest) and algo.lower() in classes
     path = model_path(rest if named else spec)

@@ -92,12 +92,18 @@ def _test(claim: Claim, df: pd.DataFrame) -> dict | None:
         test = _t_test(estimate, var, dof, 0.0)
     lo, hi, p = test(1 - ALPHA)
     return {
-        "difference": scale * estimate, "lo": scale * lo, "hi": scale * hi, "p": p,
+        "difference": scale * estimate,
+        "lo": scale * lo,
+        "hi": scale * hi,
+        "p": p,
         "test": lambda lv: tuple(scale * x for x in test(lv)[:2]),
-        "value_a": values[0], "value_b": values[1],
-        "n_seeds_a": sizes[0], "n_seeds_b": sizes[1],
-        "n_episodes_a": sizes[2], "n_episodes_b": sizes[3],
-    }  # fmt: skip
+        "value_a": values[0],
+        "value_b": values[1],
+        "n_seeds_a": sizes[0],
+        "n_seeds_b": sizes[1],
+        "n_episodes_a": sizes[2],
+        "n_episodes_b": sizes[3],
+    }
 
 
 def _t_test(estimate: float, var: float, dof: float, null: float):
@@ -194,9 +200,16 @@ spread cannot be estimated with the coverage the simulation checks (3, 5 and 10 
 
 
 def _row(claim: Claim, arm: str, density: str, result: dict) -> dict:
-    return {"claim": claim.text, "figure": claim.figure, "arm": arm, "n": n_of(density),
-            "metric": claim.metric, "expect": claim.expect, "paper": claim.paper,
-            **result}  # fmt: skip
+    return {
+        "claim": claim.text,
+        "figure": claim.figure,
+        "arm": arm,
+        "n": n_of(density),
+        "metric": claim.metric,
+        "expect": claim.expect,
+        "paper": claim.paper,
+        **result,
+    }
 
 
 def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
@@ -221,10 +234,20 @@ def ablation_table(df: pd.DataFrame) -> pd.DataFrame:
                 )
                 observed = float(ya.mean() - yb.mean())
                 lo, hi, p = t_test(observed, *crossed_difference_variance(ya, yb))
-                rows.append({"arm": arm, "n": n_of(density), "test traffic": where,
-                             "one mix %": 100 * ya.mean(), "mixture %": 100 * yb.mean(),
-                             "difference": 100 * observed, "lo": 100 * lo, "hi": 100 * hi,
-                             "p": p, "seeds": f"{len(ya)} / {len(yb)}"})  # fmt: skip
+                rows.append(
+                    {
+                        "arm": arm,
+                        "n": n_of(density),
+                        "test traffic": where,
+                        "one mix %": 100 * ya.mean(),
+                        "mixture %": 100 * yb.mean(),
+                        "difference": 100 * observed,
+                        "lo": 100 * lo,
+                        "hi": 100 * hi,
+                        "p": p,
+                        "seeds": f"{len(ya)} / {len(yb)}",
+                    }
+                )
     return pd.DataFrame(rows)
 
 
@@ -244,8 +267,11 @@ UNITS = {"collision_pct": "% collisions", "avg_speed": "m/s", "lane_changes": "l
 def _reading(r) -> str:
     """One sentence of interpretation of a claims row."""
     unit = UNITS[r.metric]
-    ours = f"ours {r.value_a:.1f} vs {r.value_b:.1f} {unit}" if r.figure != "Table II" else (
-        f"ours {r.value_a:.1f}%")  # fmt: skip
+    ours = (
+        f"ours {r.value_a:.1f} vs {r.value_b:.1f} {unit}"
+        if r.figure != "Table II"
+        else (f"ours {r.value_a:.1f}%")
+    )
     if r.verdict == "holds":
         return f"The paper's direction is confirmed ({ours}) after Holm's correction."
     if r.verdict == "contradicted":
@@ -254,8 +280,10 @@ def _reading(r) -> str:
         return f"Described only: {r.n_seeds_a} training seeds ({ours})."
     if r.verdict == "no data":
         return f"No interval ({ours})."
-    return (f"Not distinguishable at {r.n_seeds_a} training seeds ({ours}; corrected interval "
-            f"{r.lo_holm:+.1f} to {r.hi_holm:+.1f}).")  # fmt: skip
+    return (
+        f"Not distinguishable at {r.n_seeds_a} training seeds ({ours}; corrected interval "
+        f"{r.lo_holm:+.1f} to {r.hi_holm:+.1f})."
+    )
 
 
 # ---------------------------------------------------------------------- own traffic
@@ -266,8 +294,7 @@ def own_traffic(df: pd.DataFrame) -> pd.DataFrame:
     radius. ``beats_idle``: fewer collisions at >= 0.9 x idle's speed (point estimates)."""
     rows = []
     r = df[df.traffic == "paper"].radius.max() if (df.traffic == "paper").any() else 180.0
-    for (arm, family, density), g in df[df.train_seed >= 0].groupby(["arm", "family",
-                                                                      "density"]):  # fmt: skip
+    for (arm, family, density), g in df[df.train_seed >= 0].groupby(["arm", "family", "density"]):
         if family == "default":
             own, label = {"traffic": "stock"}, "stock traffic"
         elif arm.startswith("mix"):
@@ -283,13 +310,19 @@ def own_traffic(df: pd.DataFrame) -> pd.DataFrame:
         rate, lo, hi = (100 * x for x in rate_interval(y))
         n_seeds = len(y)
         row = {
-            "arm": arm, "family": family, "n": n_of(density), "own_traffic": label,
-            "n_seeds": n_seeds, "n_episodes": len(mine),
-            "collision_pct": rate, "collision_lo": lo, "collision_hi": hi,
+            "arm": arm,
+            "family": family,
+            "n": n_of(density),
+            "own_traffic": label,
+            "n_seeds": n_seeds,
+            "n_episodes": len(mine),
+            "collision_pct": rate,
+            "collision_lo": lo,
+            "collision_hi": hi,
             "avg_speed": float(mine.groupby("train_seed").avg_speed.mean().mean()),
             "idle_collision_pct": float(idle.collision_pct.mean()),
             "idle_avg_speed": float(idle.avg_speed.mean()),
-        }  # fmt: skip
+        }
         if "ending" in mine:
             for who, rows_ in (("", mine), ("idle_", idle)):
                 share = rows_.ending.value_counts(normalize=True)

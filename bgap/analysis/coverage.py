@@ -334,7 +334,8 @@ def yardstick_table(
     rows = []
     for name, kwargs in SETTINGS.items():
         for s in seeds:
-            result = yardstick_coverage(Design(s, episodes=700, **kwargs), studies=studies,
-                                        seed=seed)  # fmt: skip
+            result = yardstick_coverage(
+                Design(s, episodes=700, **kwargs), studies=studies, seed=seed
+            )
             rows += [{"setting": name, "seeds": s, "method": m, **v} for m, v in result.items()]
     return rows

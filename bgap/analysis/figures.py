@@ -46,8 +46,16 @@ from bgap.common.cli import older_command_line
 from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 
-WRITTEN = ("README.md", "cells.csv", "claims.csv", "own_traffic.csv", "yardsticks.csv",
-           "table2.md", "metrics.json", "figures")  # fmt: skip
+WRITTEN = (
+    "README.md",
+    "cells.csv",
+    "claims.csv",
+    "own_traffic.csv",
+    "yardsticks.csv",
+    "table2.md",
+    "metrics.json",
+    "figures",
+)
 """What :func:`bgap.analysis.plots.make_figures` writes into ``out``."""
 
 

@@ -88,9 +88,11 @@ def _other_windows(mine: pd.DataFrame, ref: pd.DataFrame) -> str:
     if not bad.any():
         return ""
     first = joined[bad].iloc[0]
-    return (f"{int(bad.sum())} of its {len(joined)} episodes do not fit the baselines' "
-            f"windows (seed {int(first.seed)}: {int(first.steps)} steps, the window "
-            f"{int(first.window)})")  # fmt: skip
+    return (
+        f"{int(bad.sum())} of its {len(joined)} episodes do not fit the baselines' "
+        f"windows (seed {int(first.seed)}: {int(first.steps)} steps, the window "
+        f"{int(first.window)})"
+    )
 
 
 def stage_of(folder: Path) -> str:

@@ -101,8 +101,13 @@ def crossed_difference_variance(a: np.ndarray, b: np.ndarray) -> tuple[float, fl
     ms_d = float(np.var(d, ddof=1)) if e > 1 else 0.0  # E[.] = s2_ed + s2_ra/sa + s2_rb/sb
     # Var(diff) = s2_sa/sa + s2_sb/sb + (s2_ed + s2_ra/sa + s2_rb/sb)/e, with
     # s2_s = (MS_s - MS_r)/e: every term from the mean squares, MS_r cancelling
-    terms = [(ms_sa / (sa * e), df_sa), (ms_sb / (sb * e), df_sb), (ms_d / e, e - 1),
-             (-ms_ra / (sa * e), df_ra), (-ms_rb / (sb * e), df_rb)]  # fmt: skip
+    terms = [
+        (ms_sa / (sa * e), df_sa),
+        (ms_sb / (sb * e), df_sb),
+        (ms_d / e, e - 1),
+        (-ms_ra / (sa * e), df_ra),
+        (-ms_rb / (sb * e), df_rb),
+    ]
     var = sum(v for v, _ in terms)
     df = satterthwaite(terms)
     # each of Welch's variance of the seed means and the episode term alone is a lower

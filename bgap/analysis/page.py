@@ -7,13 +7,12 @@ import json
 from pathlib import Path
 
 from bgap.analysis.claims import MIN_SEEDS, ablation_table
+from bgap.analysis.crashes import EARLY_STEPS, fault_markdown
 from bgap.analysis.episodes import ALPHA, duplicates, is_replay, n_of
 from bgap.analysis.stats import RULE_FLOOR, STOCK_MARGIN
 from bgap.analysis.tables import (
-    EARLY_STEPS,
     claims_markdown,
     departures_markdown,
-    fault_markdown,
     own_markdown,
     paper_comparison,
     replay_markdown,
@@ -112,8 +111,10 @@ def _validation(models) -> str:
         p = json.loads(text).get("profile", {})
         key = (p.get("eval_every_episodes"), p.get("eval_during_training"))
         counts[key] = counts.get(key, 0) + 1
-    parts = [f"every {every} episodes on {n} episodes ({k} policies)"
-             for (every, n), k in sorted(counts.items(), key=lambda kv: -kv[1])]  # fmt: skip
+    parts = [
+        f"every {every} episodes on {n} episodes ({k} policies)"
+        for (every, n), k in sorted(counts.items(), key=lambda kv: -kv[1])
+    ]
     return "; ".join(parts) or "(no stored settings)"
 
 
@@ -124,8 +125,11 @@ def _left_out(mismatches) -> list[str]:
     by_stage: dict[str, list] = {}
     for m in mismatches:
         by_stage.setdefault(f"evaluate@{m.arm}", []).append(m)
-    lines = [f"- `{stage}`: {len(ms)} traffic cells ({', '.join(m.traffic for m in ms)}); "
-             f"{ms[0].reason}." for stage, ms in by_stage.items()]  # fmt: skip
+    lines = [
+        f"- `{stage}`: {len(ms)} traffic cells ({', '.join(m.traffic for m in ms)}); "
+        f"{ms[0].reason}."
+        for stage, ms in by_stage.items()
+    ]
     return [
         "## Cells left out\n",
         "These cells played other traffic than the baselines, so they are compared with "

@@ -32,8 +32,10 @@ from bgap.common.vocab import YARDSTICK_NAMES
 
 # ---------------------------------------------------------------------- figures
 def _errorbar(ax, s: pd.DataFrame, metric: str, **kwargs) -> None:
-    err = [np.clip(s[metric] - s[f"{metric}_lo"], 0, None),
-           np.clip(s[f"{metric}_hi"] - s[metric], 0, None)]  # fmt: skip
+    err = [
+        np.clip(s[metric] - s[f"{metric}_lo"], 0, None),
+        np.clip(s[f"{metric}_hi"] - s[metric], 0, None),
+    ]
     ax.errorbar(s.mix, s[metric], yerr=err, capsize=3, **kwargs)
 
 
@@ -56,9 +58,13 @@ def fig4(stats: pd.DataFrame, per_seed: pd.DataFrame, path: Path, arm: str = "ma
                 if s.empty:
                     continue
                 _errorbar(ax, s, metric, fmt="-o", color=color, label=family.replace("_", "-"))
-                p = per_seed[(per_seed.arm == arm) & (per_seed.family == family)
-                             & (per_seed.density == density) & (per_seed.radius == radius)
-                             & (per_seed.traffic == "paper")]  # fmt: skip
+                p = per_seed[
+                    (per_seed.arm == arm)
+                    & (per_seed.family == family)
+                    & (per_seed.density == density)
+                    & (per_seed.radius == radius)
+                    & (per_seed.traffic == "paper")
+                ]
                 ax.plot(p.mix, p[metric], ".", color=color, alpha=0.35)
             for name, style in (("idle", "--"), ("rule", ":")):
                 s = here[here.family == name].sort_values("mix")
@@ -81,8 +87,9 @@ def fig6(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
     fig, axes = plt.subplots(1, len(densities), figsize=(5.5 * len(densities), 3.4), squeeze=False)
     for ax, density in zip(axes[0], densities, strict=True):
         for radius in sorted(set(g.radius), reverse=True):
-            s = g[(g.family == "behavior_rich") & (g.density == density)
-                  & (g.radius == radius)].sort_values("mix")  # fmt: skip
+            s = g[
+                (g.family == "behavior_rich") & (g.density == density) & (g.radius == radius)
+            ].sort_values("mix")
             _errorbar(ax, s, "collision_pct", fmt="-o", label=f"{radius:g} m")
         ax.set_title(f"n = {n_of(density)}: behaviour-rich collisions", fontsize=10)
         ax.set_xlabel("aggressive fraction")
@@ -103,17 +110,34 @@ def paper_vs_ours(stats: pd.DataFrame, path: Path, arm: str = "main") -> None:
     fig, axes = plt.subplots(1, len(densities), figsize=(6 * len(densities), 3.6), squeeze=False)
     for ax, density in zip(axes[0], densities, strict=True):
         x = np.arange(3)
-        for i, (family, color) in enumerate((("default", "tab:gray"),
-                                             ("behavior_rich", "tab:green"))):  # fmt: skip
+        for i, (family, color) in enumerate(
+            (("default", "tab:gray"), ("behavior_rich", "tab:green"))
+        ):
             paper = PAPER_CRASHES[(density, family)]
-            ax.bar(x + i * 0.4 - 0.3, list(paper.values()), 0.2, color=color, alpha=0.35,
-                   hatch="//", label=f"{family.replace('_', '-')} (paper)")  # fmt: skip
+            ax.bar(
+                x + i * 0.4 - 0.3,
+                list(paper.values()),
+                0.2,
+                color=color,
+                alpha=0.35,
+                hatch="//",
+                label=f"{family.replace('_', '-')} (paper)",
+            )
             s = g[(g.arm == arm) & (g.family == family) & (g.density == density)]
             s = s.set_index("mix").reindex(list(paper))
-            err = [np.clip(s.collision_pct - s.collision_pct_lo, 0, None).fillna(0),
-                   np.clip(s.collision_pct_hi - s.collision_pct, 0, None).fillna(0)]  # fmt: skip
-            ax.bar(x + i * 0.4 - 0.1, s.collision_pct, 0.2, yerr=err, color=color, capsize=2,
-                   label=f"{family.replace('_', '-')} (bgap)")  # fmt: skip
+            err = [
+                np.clip(s.collision_pct - s.collision_pct_lo, 0, None).fillna(0),
+                np.clip(s.collision_pct_hi - s.collision_pct, 0, None).fillna(0),
+            ]
+            ax.bar(
+                x + i * 0.4 - 0.1,
+                s.collision_pct,
+                0.2,
+                yerr=err,
+                color=color,
+                capsize=2,
+                label=f"{family.replace('_', '-')} (bgap)",
+            )
         idle = g[(g.family == "idle") & (g.density == density)].set_index("mix")
         idle = idle.reindex([0.0, 0.5, 1.0])
         ax.plot(x, idle.collision_pct, "k_", ms=30, mew=2, label="idle (bgap)")
@@ -138,15 +162,17 @@ def ablation(stats: pd.DataFrame, path: Path) -> bool:
         return False
     plt = pyplot()
     densities = [d for d in ("sparse", "dense") if d in set(g.density)]
-    fig, axes = plt.subplots(len(densities), 2, figsize=(10, 3.3 * len(densities)),
-                             squeeze=False)  # fmt: skip
+    fig, axes = plt.subplots(len(densities), 2, figsize=(10, 3.3 * len(densities)), squeeze=False)
     for r, density in enumerate(densities):
         for c, metric in enumerate(("collision_pct", "avg_speed")):
             ax = axes[r, c]
             for arm in arms:
                 s = g[(g.arm == arm) & (g.density == density)].sort_values("mix")
-                label = "mixture of the paper's mixes" if arm == "main" else (
-                    f"trained at {float(arm[3:]):g}%")  # fmt: skip
+                label = (
+                    "mixture of the paper's mixes"
+                    if arm == "main"
+                    else (f"trained at {float(arm[3:]):g}%")
+                )
                 _errorbar(ax, s, metric, fmt="-o", label=label)
             ax.set_title(f"n = {n_of(density)}: {METRICS[metric]}", fontsize=10)
             ax.set_xlabel("test aggressive fraction")
@@ -169,8 +195,9 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     densities = [d for d in ("sparse", "dense") if d in set(g.density)]
     mixes = sorted(set(g.mix))
     plt = pyplot()
-    fig, axes = plt.subplots(len(densities), len(mixes), squeeze=False,
-                             figsize=(2.6 * len(mixes), 2.6 * len(densities)))  # fmt: skip
+    fig, axes = plt.subplots(
+        len(densities), len(mixes), squeeze=False, figsize=(2.6 * len(mixes), 2.6 * len(densities))
+    )
     trained = g[g.arm != ""][["arm", "family"]].drop_duplicates()
     # A colour per arm and a marker per policy family: one colour per (arm, family) ran out
     # of matplotlib's ten once the learner arms joined (C7, grey, is idle's)
@@ -189,19 +216,17 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
                 x, y = float(rule.per_100km.iloc[0]), float(rule.avg_speed.iloc[0])
                 ax.fill_between([0, x], RULE_FLOOR * y, 40, color="tab:green", alpha=0.12)
             for _, s in here.iterrows():
-                style = {"rule": dict(marker="*", ms=11, color="k"),
-                         "idle": dict(marker="s", ms=6, color="0.5")}.get(s.family)  # fmt: skip
+                style = {
+                    "rule": dict(marker="*", ms=11, color="k"),
+                    "idle": dict(marker="s", ms=6, color="0.5"),
+                }.get(s.family)
                 if style is None and (s.arm, s.family) not in colors:  # random, left
                     continue
                 if style is None:
                     style = dict(
                         marker=markers.get(s.family, "o"), ms=5, color=colors[(s.arm, s.family)]
                     )
-                ax.errorbar(s.per_100km, s.avg_speed, capsize=2, lw=0.8, ls="none",
-                            xerr=[[max(s.per_100km - s.per_100km_lo, 0)],
-                                  [max(s.per_100km_hi - s.per_100km, 0)]],
-                            yerr=[[max(s.avg_speed - s.avg_speed_lo, 0)],
-                                  [max(s.avg_speed_hi - s.avg_speed, 0)]], **style)  # fmt: skip
+                _point(ax, s, "per_100km", capsize=2, lw=0.8, **style)
             ax.set_ylim(max(here.avg_speed_lo.min() - 1, 0), here.avg_speed_hi.max() + 1)
             ax.set_xlim(0, max(here.per_100km_hi.max() * 1.05, 1e-3))
             ax.set_title(f"{density}, mix {mix:g}", fontsize=8)
@@ -210,11 +235,21 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
                 ax.set_xlabel("collisions per 100 km", fontsize=8)
             if c == 0:
                 ax.set_ylabel("speed [m/s]", fontsize=8)
-    handles = [plt.Line2D([], [], marker=markers.get(family, "o"), ls="none", color=col,
-                          label=f"{arm} {family.replace('_', '-')}")
-               for (arm, family), col in colors.items()]  # fmt: skip
-    handles += [plt.Line2D([], [], marker="*", ms=11, ls="none", color="k", label="rule-based"),
-                plt.Line2D([], [], marker="s", ls="none", color="0.5", label="idle")]  # fmt: skip
+    handles = [
+        plt.Line2D(
+            [],
+            [],
+            marker=markers.get(family, "o"),
+            ls="none",
+            color=col,
+            label=f"{arm} {family.replace('_', '-')}",
+        )
+        for (arm, family), col in colors.items()
+    ]
+    handles += [
+        plt.Line2D([], [], marker="*", ms=11, ls="none", color="k", label="rule-based"),
+        plt.Line2D([], [], marker="s", ls="none", color="0.5", label="idle"),
+    ]
     ncol = min(len(handles), 8)
     fig.legend(handles=handles, loc="lower center", ncol=ncol, fontsize=7)
     rows = -(-len(handles) // ncol)  # the legend's rows, kept clear of the x labels
@@ -224,7 +259,7 @@ def speed_vs_safety(stats: pd.DataFrame, path: Path) -> bool:
     return True
 
 
-def _point(ax, row: pd.Series, metric: str, **style) -> None:
+def _point(ax, row: pd.Series, metric: str, capsize: float = 3, **style) -> None:
     """One policy's point, ``metric`` against speed, with both intervals (``<column>_lo``,
     ``<column>_hi``) as error bars."""
 
@@ -232,8 +267,15 @@ def _point(ax, row: pd.Series, metric: str, **style) -> None:
         v = row[column]
         return [[max(v - row[f"{column}_lo"], 0)], [max(row[f"{column}_hi"] - v, 0)]]
 
-    ax.errorbar(row[metric], row.avg_speed, capsize=3, ls="none", xerr=err(metric),
-                yerr=err("avg_speed"), **style)  # fmt: skip
+    ax.errorbar(
+        row[metric],
+        row.avg_speed,
+        capsize=capsize,
+        ls="none",
+        xerr=err(metric),
+        yerr=err("avg_speed"),
+        **style,
+    )
 
 
 def _yardstick_panel(
@@ -258,16 +300,30 @@ def _yardstick_panel(
     _point(ax, rule, metric, marker="*", ms=13, color="k", label="rule-based ego")
     for name, marker in (("rule_tuned", "D"), ("idm", "X")):  # the other yardsticks
         if ("", name) in table.index:
-            _point(ax, table.loc[("", name)], metric, marker=marker, ms=8, color="0.35",
-                      label=YARDSTICK_NAMES[name])  # fmt: skip
+            _point(
+                ax,
+                table.loc[("", name)],
+                metric,
+                marker=marker,
+                ms=8,
+                color="0.35",
+                label=YARDSTICK_NAMES[name],
+            )
     top = max(ax.get_ylim()[1], floor + 1)
     rule_text = (
         f"fewer than it, at >= {RULE_FLOOR:g} x its speed"
         if metric == "per_100km"
         else f"<= {STOCK_MARGIN:g} point above it, at >= {RULE_FLOOR:g} x its speed"
     )
-    ax.fill_between([0, x_edge], floor, top, color="tab:green", alpha=0.15, lw=0,
-                    label=f"meets the rule: {rule_text}")  # fmt: skip
+    ax.fill_between(
+        [0, x_edge],
+        floor,
+        top,
+        color="tab:green",
+        alpha=0.15,
+        lw=0,
+        label=f"meets the rule: {rule_text}",
+    )
     ax.axhline(floor, color="tab:green", lw=0.8, ls="--")
     ax.set_ylim(top=top)
     ax.set_xscale("symlog", linthresh=1.0)
@@ -296,11 +352,27 @@ def yardstick(yard: Yardstick, path: Path) -> bool:
         return False
     plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(10, 5.4))
-    panels = [(axes[0], dense, "behavior_rich", "per_100km", "collisions per 100 km",
-               "behaviour-rich, dense traffic (pooled over the cells)")]  # fmt: skip
+    panels = [
+        (
+            axes[0],
+            dense,
+            "behavior_rich",
+            "per_100km",
+            "collisions per 100 km",
+            "behaviour-rich, dense traffic (pooled over the cells)",
+        )
+    ]
     if len(stock) and ("", "rule") in stock.index:
-        panels.append((axes[1], stock, "default", "collision_pct", "episodes with a collision [%]",
-                       "default, dense stock traffic"))  # fmt: skip
+        panels.append(
+            (
+                axes[1],
+                stock,
+                "default",
+                "collision_pct",
+                "episodes with a collision [%]",
+                "default, dense stock traffic",
+            )
+        )
     else:
         axes[1].set_axis_off()
     for ax, table, family, metric, xlabel, title in panels:
@@ -363,7 +435,6 @@ def make_figures(
     paths["yardsticks"] = out / "yardsticks.csv"
     write_atomic(paths["yardsticks"], lambda p: versus.to_csv(p, index=False))
     paths["readme"] = out / "README.md"
-    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard, left_out,
-                  versus)  # fmt: skip
+    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard, left_out, versus)
     write_atomic(paths["readme"], page)
     return paths

@@ -73,8 +73,10 @@ def seed_per_100km_interval(
     distance), and its 95% interval: a two-level bootstrap (seeds, then each seed's
     episodes, crash and distance together), widened where needed to the pooled episodes'
     Poisson interval, so never of zero width (as :func:`seed_rate_interval`)."""
-    pairs = [(np.asarray(c, dtype=float), np.asarray(d, dtype=float) / PER_KM)
-             for c, d in zip(crashes, distance, strict=True)]  # fmt: skip
+    pairs = [
+        (np.asarray(c, dtype=float), np.asarray(d, dtype=float) / PER_KM)
+        for c, d in zip(crashes, distance, strict=True)
+    ]
     rates = [c.sum() / d.sum() for c, d in pairs]
     pick = rng.integers(len(pairs), size=(draws, len(pairs)))
     dist = np.empty(pick.shape)
@@ -84,8 +86,9 @@ def seed_per_100km_interval(
             idx = rng.integers(len(c), size=(int(slots.sum()), len(c)))
             dist[slots] = c[idx].sum(axis=1) / d[idx].sum(axis=1)
     lo, hi, _ = bootstrap_test(dist.mean(axis=1), observed=float(np.mean(rates)))
-    _, p_lo, p_hi = per_100km(np.concatenate([c for c, _ in pairs]),
-                              np.concatenate([d for _, d in pairs]) * PER_KM)  # fmt: skip
+    _, p_lo, p_hi = per_100km(
+        np.concatenate([c for c, _ in pairs]), np.concatenate([d for _, d in pairs]) * PER_KM
+    )
     return float(np.mean(rates)), min(lo, p_lo), max(hi, p_hi)
 
 

@@ -38,11 +38,13 @@ def table2(stats: pd.DataFrame) -> str:
     100% aggressive, largest radius), the baselines included."""
     s = stats[(stats.density == "sparse") & (stats.mix == 1.0) & (stats.traffic == "paper")]
     s = s[s.radius == s.radius.max()] if len(s) else s
-    lines = ["| method (n = 5, 100% aggressive) | collision % [95% CI] | seeds x episodes |",
-             "|---|---|---|"]  # fmt: skip
+    lines = [
+        "| method (n = 5, 100% aggressive) | collision % [95% CI] | seeds x episodes |",
+        "|---|---|---|",
+    ]
     lines += [f"| {k} (as reported) | {v:.2f} | - |" for k, v in TABLE_II.items()]
     for r in s.sort_values(["arm", "family"], key=_arm_order).itertuples():
-        who = _label(r.arm, r.family)
+        who = policy_label(r.arm, r.family)
         per = r.n_episodes // r.n_seeds
         lines.append(
             f"| {who} | {r.collision_pct:.2f} [{r.collision_pct_lo:.2f}, "
@@ -64,7 +66,8 @@ def _arm_order(column: pd.Series) -> pd.Series:
     return column.map(key)
 
 
-def _label(arm: str, family: str) -> str:
+def policy_label(arm: str, family: str) -> str:
+    """How a policy is named in the page's tables: "bgap <family> <algorithm>, <arm>"."""
     if not arm:
         return f"{family} (baseline)"
     return f"bgap {family.replace('_', '-')} {arm_algo(arm)}, {arm_name(arm)}"
@@ -80,10 +83,16 @@ def paper_comparison(stats: pd.DataFrame, arm: str = "main") -> str:
     r = g.radius.max()
     for (density, family), paper in PAPER_CRASHES.items():
         for mix, value in paper.items():
-            s = g[(g.arm == arm) & (g.family == family) & (g.density == density)
-                  & (g.mix == mix) & (g.radius == r)]  # fmt: skip
-            idle = g[(g.family == "idle") & (g.density == density) & (g.mix == mix)
-                     & (g.radius == r)]  # fmt: skip
+            s = g[
+                (g.arm == arm)
+                & (g.family == family)
+                & (g.density == density)
+                & (g.mix == mix)
+                & (g.radius == r)
+            ]
+            idle = g[
+                (g.family == "idle") & (g.density == density) & (g.mix == mix) & (g.radius == r)
+            ]
             if s.empty:
                 continue
             x = s.iloc[0]
@@ -130,10 +139,12 @@ def own_markdown(own: pd.DataFrame) -> str:
     for r in own.sort_values(["arm", "family"], key=_arm_order).itertuples():
         verdict = "beats idle" if r.beats_idle else "**does not beat idle**"
         split, idle_split = (
-            " / ".join(f"{getattr(r, f'{who}{k}_pct', float('nan')):.1f}"
-                       for k in ("rear_end", "rear_ended", "lane_change"))
+            " / ".join(
+                f"{getattr(r, f'{who}{k}_pct', float('nan')):.1f}"
+                for k in ("rear_end", "rear_ended", "lane_change")
+            )
             for who in ("", "idle_")
-        )  # fmt: skip
+        )
         lines.append(
             f"| {r.arm} | {r.family} | {r.n} | {r.own_traffic} | {r.collision_pct:.1f} "
             f"[{r.collision_lo:.1f}, {r.collision_hi:.1f}] | {split} | {r.avg_speed:.2f} | "
@@ -155,14 +166,19 @@ def selection_markdown(models: pd.DataFrame) -> str:
     t = models.dropna(subset=["chosen_episodes"]).assign(arm=_arms)
     if not len(t):
         return "(no training validated periodically: the last parameters are evaluated)\n"
-    lines = ["| arm | trainings | chosen at episode (median, range) | validation collision % "
-             "chosen / last (means) |", "|---|---|---|---|"]  # fmt: skip
+    lines = [
+        "| arm | trainings | chosen at episode (median, range) | validation collision % "
+        "chosen / last (means) |",
+        "|---|---|---|---|",
+    ]
     for arm, g in t.groupby("arm"):
         chosen = g.chosen_episodes.astype(int)
         collisions = f"{g.chosen_collision_pct.mean():.1f} / {g.last_collision_pct.mean():.1f}"
         of = int(g.validated_episodes.max())
-        lines.append(f"| {arm} | {len(g)} | {chosen.median():.0f} ({chosen.min()}-"
-                     f"{chosen.max()} of {of}) | {collisions} |")  # fmt: skip
+        lines.append(
+            f"| {arm} | {len(g)} | {chosen.median():.0f} ({chosen.min()}-"
+            f"{chosen.max()} of {of}) | {collisions} |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -178,14 +194,17 @@ def departures_markdown(models: pd.DataFrame) -> str:
                 configs[arm] = json.loads(rows.settings.iloc[0])
     if len(configs) < 2:
         return "(needs the models tables of both arms)\n"
-    lines = ["| setting | authors' arm (their 2020 configuration) | main arm (recipe) |",
-             "|---|---|---|"]  # fmt: skip
+    lines = [
+        "| setting | authors' arm (their 2020 configuration) | main arm (recipe) |",
+        "|---|---|---|",
+    ]
     for group in ("reward", "agent", "profile"):
         a, b = configs["authors"][group], configs["main"][group]
         for key in sorted(set(a) | set(b)):
             if key != "name" and a.get(key) != b.get(key):
-                shown = [f"{v:.4g}" if isinstance(v, float) else str(v)
-                         for v in (a.get(key), b.get(key))]  # fmt: skip
+                shown = [
+                    f"{v:.4g}" if isinstance(v, float) else str(v) for v in (a.get(key), b.get(key))
+                ]
                 lines.append(f"| {group}.{key} | {shown[0]} | {shown[1]} |")
     lines.append(
         "\nThe recipe's settings come from `bgap.recipe` (results/recipe/, validation episodes "
@@ -195,8 +214,12 @@ def departures_markdown(models: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
-SYMBOLS = {"beats": "**beats**", "beaten": "beaten", "safer, slower": "safer, slower",
-           "faster, less safe": "faster, less safe"}  # fmt: skip
+SYMBOLS = {
+    "beats": "**beats**",
+    "beaten": "beaten",
+    "safer, slower": "safer, slower",
+    "faster, less safe": "faster, less safe",
+}
 
 
 def rule_markdown(stats: pd.DataFrame) -> str:
@@ -216,9 +239,12 @@ def rule_markdown(stats: pd.DataFrame) -> str:
             continue
         pooled_rule = (rule.per_100km.mean(), rule.avg_speed.mean())
         head = " | ".join(f"mix {m:g}" for m in mixes)
-        lines = [f"**{density} (n = {n_of(density)})**: collisions per 100 km at m/s; verdict "
-                 "against the rule-based ego in the same cell\n",
-                 f"| policy | {head} | pooled |", "|---|" + "---|" * (len(mixes) + 1)]  # fmt: skip
+        lines = [
+            f"**{density} (n = {n_of(density)})**: collisions per 100 km at m/s; verdict "
+            "against the rule-based ego in the same cell\n",
+            f"| policy | {head} | pooled |",
+            "|---|" + "---|" * (len(mixes) + 1),
+        ]
         for (arm, family), p in here.groupby(["arm", "family"], sort=False):
             p = p.set_index("mix")
             cells = []
@@ -229,14 +255,18 @@ def rule_markdown(stats: pd.DataFrame) -> str:
                 r, b = p.loc[m], rule.loc[m]
                 text = f"{r.per_100km:.1f} at {r.avg_speed:.2f}"
                 if family != "rule":
-                    text += ", " + SYMBOLS[versus_rule(r.per_100km, r.avg_speed, b.per_100km,
-                                                        b.avg_speed)]  # fmt: skip
+                    text += (
+                        ", "
+                        + SYMBOLS[versus_rule(r.per_100km, r.avg_speed, b.per_100km, b.avg_speed)]
+                    )
                 cells.append(text)
             pooled = (p.per_100km.mean(), p.avg_speed.mean())
             pooled_text = f"{pooled[0]:.1f} at {pooled[1]:.2f}"
             if family != "rule" and len(p) == len(mixes):
                 pooled_text += ", " + SYMBOLS[versus_rule(*pooled, *pooled_rule)]
-            lines.append(f"| {_label(arm, family)} | " + " | ".join(cells) + f" | {pooled_text} |")
+            lines.append(
+                f"| {policy_label(arm, family)} | " + " | ".join(cells) + f" | {pooled_text} |"
+            )
         order = sorted(lines[3:], key=lambda line: ("(baseline)" in line, line))
         parts.append("\n".join(lines[:3] + order) + "\n")
     return "\n".join(parts) if parts else "(no rule-based ego in the evaluations)\n"
@@ -259,8 +289,15 @@ def pooled_intervals(df: pd.DataFrame, density: str, draws: int = 4000) -> pd.Da
     widened to the Poisson interval of all the episodes' crashes over their kilometres, so it
     never has zero width (as :func:`bgap.analysis.episodes.cell_stats`). Empty where the
     episodes lack ``distance``."""
-    cols = ["per_100km", "per_100km_lo", "per_100km_hi", "avg_speed", "avg_speed_lo",
-            "avg_speed_hi", "n_seeds"]  # fmt: skip
+    cols = [
+        "per_100km",
+        "per_100km_lo",
+        "per_100km_hi",
+        "avg_speed",
+        "avg_speed_lo",
+        "avg_speed_hi",
+        "n_seeds",
+    ]
     g = df[df.traffic == "paper"] if "traffic" in df else df
     if "distance" not in g or g.empty:
         return pd.DataFrame(columns=["arm", "family", *cols]).set_index(["arm", "family"])
@@ -270,8 +307,12 @@ def pooled_intervals(df: pd.DataFrame, density: str, draws: int = 4000) -> pd.Da
     rows = {}
     for key, pol in g.groupby(["arm", "family"], sort=True):
         cells = pol.groupby(["train_seed", "mix"])
-        per_cell = pd.DataFrame({"rate": cells.crashed.sum() / cells.distance.sum() * PER_KM,
-                                 "speed": cells.avg_speed.mean()})  # fmt: skip
+        per_cell = pd.DataFrame(
+            {
+                "rate": cells.crashed.sum() / cells.distance.sum() * PER_KM,
+                "speed": cells.avg_speed.mean(),
+            }
+        )
         seeds = per_cell.groupby(level="train_seed").mean()
         if len(seeds) > 1:
             (r_lo, r_hi), (s_lo, s_hi) = spread_interval(seeds.rate), spread_interval(seeds.speed)
@@ -288,8 +329,15 @@ def pooled_intervals(df: pd.DataFrame, density: str, draws: int = 4000) -> pd.Da
             if s_hi <= s_lo:  # no spread: the precision speeds are stored in (spread_interval)
                 s_lo, s_hi = spread_interval(np.full(2, s_lo))
         _, p_lo, p_hi = per_100km(pol.crashed.to_numpy(float), pol.distance.to_numpy(float))
-        rows[key] = [seeds.rate.mean(), max(min(r_lo, p_lo), 0.0), max(r_hi, p_hi),
-                     seeds.speed.mean(), max(s_lo, 0.0), s_hi, len(seeds)]  # fmt: skip
+        rows[key] = [
+            seeds.rate.mean(),
+            max(min(r_lo, p_lo), 0.0),
+            max(r_hi, p_hi),
+            seeds.speed.mean(),
+            max(s_lo, 0.0),
+            s_hi,
+            len(seeds),
+        ]
     out = pd.DataFrame.from_dict(rows, orient="index", columns=cols)
     out.index = pd.MultiIndex.from_tuples(out.index, names=["arm", "family"])
     return out
@@ -354,15 +402,19 @@ def yardstick_markdown(stats: pd.DataFrame, claims: pd.DataFrame, yard: Yardstic
         if pair := _beside_rule(dense, arm, "behavior_rich"):
             p, r = pair
             verdict = versus_rule(p.per_100km, p.avg_speed, r.per_100km, r.avg_speed)
-            cells = [f"{_pm(p, 'per_100km', 1)} at {_pm(p, 'avg_speed', 2)}",
-                     f"{_pm(r, 'per_100km', 1)} at {_pm(r, 'avg_speed', 2)}",
-                     "**yes**" if verdict == "beats" else f"no ({verdict})"]  # fmt: skip
+            cells = [
+                f"{_pm(p, 'per_100km', 1)} at {_pm(p, 'avg_speed', 2)}",
+                f"{_pm(r, 'per_100km', 1)} at {_pm(r, 'avg_speed', 2)}",
+                "**yes**" if verdict == "beats" else f"no ({verdict})",
+            ]
         if pair := _beside_rule(stock, arm, "default"):
             p, r = pair
             keeps = keeps_up(p.collision_pct, p.avg_speed, r.collision_pct, r.avg_speed)
-            cells += [f"{_pm(p, 'collision_pct', 1)} at {_pm(p, 'avg_speed', 2)}",
-                      f"{_pm(r, 'collision_pct', 1)} at {_pm(r, 'avg_speed', 2)}",
-                      "**yes**" if keeps else "no"]  # fmt: skip
+            cells += [
+                f"{_pm(p, 'collision_pct', 1)} at {_pm(p, 'avg_speed', 2)}",
+                f"{_pm(r, 'collision_pct', 1)} at {_pm(r, 'avg_speed', 2)}",
+                "**yes**" if keeps else "no",
+            ]
         else:
             cells += ["-", "-", "-"]
         if pair := _beside_rule(sparse, arm, "behavior_rich"):
@@ -389,64 +441,27 @@ def replay_markdown(stats: pd.DataFrame) -> str:
     parts = []
     for density in [d for d in ("sparse", "dense") if d in set(g.density)]:
         here = g[g.density == density].sort_values(["traffic", "arm", "family"], key=_arm_order)
-        lines = [f"**{density} (the {n_of(density)}-vehicle observation)**\n",
-                 "| replayed table / mode | aggressive share | policy | collision % [95% CI] | "
-                 "per 100 km [95% CI] | m/s | crashes %: " + " / ".join(kinds) + " | against "
-                 "the rule-based ego |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        lines = [
+            f"**{density} (the {n_of(density)}-vehicle observation)**\n",
+            "| replayed table / mode | aggressive share | policy | collision % [95% CI] | "
+            "per 100 km [95% CI] | m/s | crashes %: " + " / ".join(kinds) + " | against "
+            "the rule-based ego |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
         for traffic, t in here.groupby("traffic", sort=False):
             rule = t[t.family == "rule"]
             for r in t.itertuples():
                 verdict = "-"
                 if r.family != "rule" and len(rule):
                     b = rule.iloc[0]
-                    verdict = SYMBOLS[versus_rule(r.per_100km, r.avg_speed, b.per_100km,
-                                                  b.avg_speed)]  # fmt: skip
+                    verdict = SYMBOLS[
+                        versus_rule(r.per_100km, r.avg_speed, b.per_100km, b.avg_speed)
+                    ]
                 split = " / ".join(f"{getattr(r, f'{k}_pct'):.0f}" for k in kinds)
                 lines.append(
-                    f"| {traffic[len(REPLAY) :]} | {r.mix:.2f} | {_label(r.arm, r.family)} | "
+                    f"| {traffic[len(REPLAY) :]} | {r.mix:.2f} | {policy_label(r.arm, r.family)} | "
                     f"{_pm(r, 'collision_pct', 1)} | {_pm(r, 'per_100km', 1)} | "
                     f"{r.avg_speed:.2f} | {split} | {verdict} |"
                 )
         parts.append("\n".join(lines) + "\n")
-    return "\n".join(parts)
-
-
-AT_FAULT = ("rear_end", "lane_change")
-"""Endings that count as the ego's fault (nuPlan's convention: its own rear-ends and lane
-changes, not being run into from behind; a crash without a reported partner is neither)."""
-EARLY_STEPS = 3
-"""Policy steps counted as an episode's start in the crash-timing table."""
-
-
-def fault_markdown(df: pd.DataFrame) -> str:
-    """Collisions by fault and by time in the cells read against the rule-based ego (the
-    paper's traffic, largest radius, repeated cells once): per density and policy, the
-    share of episodes with any collision (the claims' measure), with an at-fault one
-    (:data:`AT_FAULT`), being rear-ended, in the first :data:`EARLY_STEPS` policy steps,
-    and after the first policy period. Episodes pooled over seeds and cells: descriptive."""
-    g = df[(df.traffic == "paper")] if "traffic" in df else df
-    if "ending" not in g or "steps" not in g or g.empty:
-        return "(the evaluations hold no crash endings: evaluate again)\n"
-    g = distinct_cells(g)
-    g = g[g.radius == g.radius.max()]
-    crashed = g.collision_pct > 0
-    g = g.assign(
-        any=crashed, at_fault=crashed & g.ending.isin(AT_FAULT),
-        rear_ended=crashed & (g.ending == "rear_ended"),
-        early=crashed & (g.steps <= EARLY_STEPS), late=crashed & (g.steps > 1),
-    )  # fmt: skip
-    parts = []
-    for density in [d for d in ("sparse", "dense") if d in set(g.density)]:
-        here = g[g.density == density]
-        head = (
-            "| policy | episodes | any collision | at fault | rear-ended | in the first "
-            f"{EARLY_STEPS} steps | after the first step |"
-        )
-        lines = [f"**{density} (n = {n_of(density)})**: % of episodes\n", head, "|---" * 7 + "|"]
-        for (arm, family), p in here.groupby(["arm", "family"], sort=False):
-            kinds = ("any", "at_fault", "rear_ended", "early", "late")
-            shares = " | ".join(f"{100 * p[k].mean():.1f}" for k in kinds)
-            lines.append(f"| {_label(arm, family)} | {len(p)} | {shares} |")
-        order = sorted(lines[3:], key=lambda line: ("(baseline)" in line, line))
-        parts.append("\n".join(lines[:3] + order) + "\n")
     return "\n".join(parts)

@@ -102,10 +102,22 @@ def compare(policy: tuple, yard: tuple, mixes: np.ndarray) -> dict[str, float]:
         verdict = "beaten" if not fast or s_diff <= 0 else "faster, less safe"
     else:
         verdict = "not significant"
-    return {"n_seeds": n_seeds, "per_100km": rate, "yard_per_100km": y_rate,
-            "diff": diff, "diff_lo": lo, "diff_hi": hi, "p": p, "avg_speed": speed,
-            "yard_speed": y_speed, "speed_diff": s_diff, "speed_diff_lo": s_lo,
-            "speed_diff_hi": s_hi, "speed_ratio": speed / y_speed, "verdict": verdict}  # fmt: skip
+    return {
+        "n_seeds": n_seeds,
+        "per_100km": rate,
+        "yard_per_100km": y_rate,
+        "diff": diff,
+        "diff_lo": lo,
+        "diff_hi": hi,
+        "p": p,
+        "avg_speed": speed,
+        "yard_speed": y_speed,
+        "speed_diff": s_diff,
+        "speed_diff_lo": s_lo,
+        "speed_diff_hi": s_hi,
+        "speed_ratio": speed / y_speed,
+        "verdict": verdict,
+    }
 
 
 def versus(policy: pd.DataFrame, yard: pd.DataFrame) -> dict[str, float]:
@@ -138,8 +150,15 @@ def versus_yardsticks(df: pd.DataFrame) -> pd.DataFrame:
             for name, yard in yards.items():
                 if not _same_episodes(pol, yard):
                     continue  # another grid: not the same episodes
-                rows.append({"density": density, "arm": arm, "family": family,
-                             "yardstick": name, **versus(pol, yard)})  # fmt: skip
+                rows.append(
+                    {
+                        "density": density,
+                        "arm": arm,
+                        "family": family,
+                        "yardstick": name,
+                        **versus(pol, yard),
+                    }
+                )
     out = pd.DataFrame(rows)
     if out.empty:
         return out
@@ -169,11 +188,13 @@ def markdown(table: pd.DataFrame) -> str:
             f"{first.loc[y, 'yard_speed']:.2f} m/s"
             for y in yards
         )
-        lines = [f"**{density} (n = {n_of(density)})**: {known}\n",
-                 "| policy | seeds | per 100 km at m/s | " + " | ".join(
-                     f"vs `{y}`: difference [95% CI], speed ratio" for y in yards)
-                 + " | beats the hand-built driver? |",
-                 "|---|---|---|" + "---|" * (len(yards) + 1)]  # fmt: skip
+        lines = [
+            f"**{density} (n = {n_of(density)})**: {known}\n",
+            "| policy | seeds | per 100 km at m/s | "
+            + " | ".join(f"vs `{y}`: difference [95% CI], speed ratio" for y in yards)
+            + " | beats the hand-built driver? |",
+            "|---|---|---|" + "---|" * (len(yards) + 1),
+        ]
         for (arm, family), rows in here.groupby(["arm", "family"], sort=True):
             rows = rows.set_index("yardstick")
             r0 = rows.iloc[0]
@@ -183,8 +204,10 @@ def markdown(table: pd.DataFrame) -> str:
                     cells.append("-")
                     continue
                 r = rows.loc[y]
-                cells.append(f"{r['diff']:+.2f} [{r.diff_lo:+.2f}, {r.diff_hi:+.2f}], "
-                             f"{r.speed_ratio:.2f}: {r.verdict}")  # fmt: skip
+                cells.append(
+                    f"{r['diff']:+.2f} [{r.diff_lo:+.2f}, {r.diff_hi:+.2f}], "
+                    f"{r.speed_ratio:.2f}: {r.verdict}"
+                )
             if (rows.verdict == "too few seeds").any():
                 answer = "too few seeds"
             else:

@@ -465,9 +465,16 @@ def calibrate_to_data(
         "mix": mix,
     }
     return write_report(
-        cfg.calibrate.target, Path(report), observed, study, arms, table, calibrated, simulated,
+        cfg.calibrate.target,
+        Path(report),
+        observed,
+        study,
+        arms,
+        table,
+        calibrated,
+        simulated,
         sensitive,
-    )  # fmt: skip
+    )
 
 
 def _first_frame_density(cfg: CalibrateAppConfig, env, mix: float) -> float:

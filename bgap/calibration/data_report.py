@@ -84,9 +84,11 @@ def _plot_statistics(observed: Any, arms: dict[str, dict], path: Path) -> None:
     plt = pyplot()
     classes = [cls for cls in (CONSERVATIVE, AGGRESSIVE) if cls in observed.samples]
     fig, axes = plt.subplots(
-        len(classes), len(ALL_STATISTICS), figsize=(3.2 * len(ALL_STATISTICS), 2.6 * len(classes)),
+        len(classes),
+        len(ALL_STATISTICS),
+        figsize=(3.2 * len(ALL_STATISTICS), 2.6 * len(classes)),
         squeeze=False,
-    )  # fmt: skip
+    )
     for i, cls in enumerate(classes):
         for j, name in enumerate(ALL_STATISTICS):
             ax = axes[i][j]
@@ -99,9 +101,16 @@ def _plot_statistics(observed: Any, arms: dict[str, dict], path: Path) -> None:
             bins = np.linspace(*np.quantile(values, [0.01, 0.99]), 31)
             for arm, sample, color in series:  # dashed on top: equal arms both show
                 if len(sample):
-                    ax.hist(sample, bins=bins, density=True, histtype="step", color=color,
-                            ls="--" if arm == "calibrated" else "-", label=arm,
-                            lw=2.0 if arm == "table1" else 1.2)  # fmt: skip
+                    ax.hist(
+                        sample,
+                        bins=bins,
+                        density=True,
+                        histtype="step",
+                        color=color,
+                        ls="--" if arm == "calibrated" else "-",
+                        label=arm,
+                        lw=2.0 if arm == "table1" else 1.2,
+                    )
             ax.set_title(f"{cls}: {name}", fontsize=9)
             if i == 0 and j == 0:
                 ax.legend(fontsize=7)

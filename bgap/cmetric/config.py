@@ -49,8 +49,12 @@ class BoundaryConfig:
     """Where the boundary preset goes; default ``<out>/<cmetric>.yaml``."""
 
     def __post_init__(self) -> None:
-        check(bool(self.tables), "tables", self.tables, "give labelled tables, e.g. "
-              "tables=[outputs/pipeline/cmetric_data]")  # fmt: skip
+        check(
+            bool(self.tables),
+            "tables",
+            self.tables,
+            "give labelled tables, e.g. tables=[outputs/pipeline/cmetric_data]",
+        )
 
 
 SCHEMAS = (

@@ -95,8 +95,11 @@ def run(prog: str, task: Callable[[], Any], on_interrupt: str) -> Any:
     except KeyboardInterrupt:
         fail(prog, f"interrupted: {on_interrupt}", INTERRUPTED)
     except FileExistsError as err:  # a file where the command makes its folder
-        fail(prog, f"{err.filename} is a file, not a folder: give the output (out=, run_dir=) "
-             "a folder's path, or move that file")  # fmt: skip
+        fail(
+            prog,
+            f"{err.filename} is a file, not a folder: give the output (out=, run_dir=) "
+            "a folder's path, or move that file",
+        )
     except known_errors() as err:
         fail(prog, one_line(err))
     except OSError as err:
@@ -131,8 +134,10 @@ def machine_fault(err: OSError) -> str:
     """The one line for a machine fault (an ``OSError`` whose errno is in :data:`FAULTS`)."""
     writing = f" writing {err.filename}" if err.filename else ""
     what = FAULTS[err.errno].format(writing=writing, file=err.filename or "the output")
-    return (f"{what}, and run the same command again (what was finished is kept or redone, "
-            "never half-read)")  # fmt: skip
+    return (
+        f"{what}, and run the same command again (what was finished is kept or redone, "
+        "never half-read)"
+    )
 
 
 def bare_first_argument(*keys: str) -> None:
@@ -153,8 +158,22 @@ def _is_number(text: str) -> bool:
     return True
 
 
-HYDRA_OPTIONS = ("--help", "-h", "--hydra-help", "--cfg", "-c", "--info", "--resolve",
-                 "--package", "-p", "--multirun", "-m", "--run", "-r", "--version")  # fmt: skip
+HYDRA_OPTIONS = (
+    "--help",
+    "-h",
+    "--hydra-help",
+    "--cfg",
+    "-c",
+    "--info",
+    "--resolve",
+    "--package",
+    "-p",
+    "--multirun",
+    "-m",
+    "--run",
+    "-r",
+    "--version",
+)
 """Hydra's own command-line options: passed through as they are."""
 
 
@@ -195,8 +214,9 @@ def older_command_line(
         else:
             args.append(arg)
     if bare:
-        args[:0] = [f"{positional}=[{','.join(bare)}]"] if listed else [f"{positional}={bare[0]}",
-                                                                         *bare[1:]]  # fmt: skip
+        args[:0] = (
+            [f"{positional}=[{','.join(bare)}]"]
+            if listed
+            else [f"{positional}={bare[0]}", *bare[1:]]
+        )
     sys.argv[1:] = args
-
-

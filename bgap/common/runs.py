@@ -98,9 +98,15 @@ def differing_keys(stored: dict, current: dict, ignore: tuple[str, ...] = VOLATI
 
 
 DAMAGED = (
-    pickle.UnpicklingError, EOFError, zipfile.BadZipFile, KeyError, ValueError, OSError,
-    RuntimeError, AttributeError,
-)  # fmt: skip
+    pickle.UnpicklingError,
+    EOFError,
+    zipfile.BadZipFile,
+    KeyError,
+    ValueError,
+    OSError,
+    RuntimeError,
+    AttributeError,
+)
 """What reading a truncated or corrupt model or checkpoint raises (pickle, zip, torch; a
 model read as another algorithm's: AttributeError)."""
 

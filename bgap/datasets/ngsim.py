@@ -32,10 +32,25 @@ from bgap.sim.recorder import COLUMNS
 FEET = 0.3048
 FPS = 10.0
 NAMES = (
-    "Vehicle_ID", "Frame_ID", "Total_Frames", "Global_Time", "Local_X", "Local_Y",
-    "Global_X", "Global_Y", "v_Length", "v_Width", "v_Class", "v_Vel", "v_Acc", "Lane_ID",
-    "Preceding", "Following", "Space_Headway", "Time_Headway",
-)  # fmt: skip
+    "Vehicle_ID",
+    "Frame_ID",
+    "Total_Frames",
+    "Global_Time",
+    "Local_X",
+    "Local_Y",
+    "Global_X",
+    "Global_Y",
+    "v_Length",
+    "v_Width",
+    "v_Class",
+    "v_Vel",
+    "v_Acc",
+    "Lane_ID",
+    "Preceding",
+    "Following",
+    "Space_Headway",
+    "Time_Headway",
+)
 """The original release's columns, in order (its ``.txt`` files have no header)."""
 CLASSES = {1: "motorcycle", 2: "car", 3: "truck"}
 

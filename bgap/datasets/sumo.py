@@ -95,18 +95,34 @@ class SumoConfig:
     ego_position: float = 2000.0
     aggressive: SumoDriver = field(
         default_factory=lambda: SumoDriver(
-            speed_factor=1.3, speed_dev=0.1, tau=0.6, accel=3.5, decel=6.0, min_gap=1.5,
-            sigma=0.5, lc_speed_gain=5.0, lc_assertive=3.0, lc_cooperative=0.2,
+            speed_factor=1.3,
+            speed_dev=0.1,
+            tau=0.6,
+            accel=3.5,
+            decel=6.0,
+            min_gap=1.5,
+            sigma=0.5,
+            lc_speed_gain=5.0,
+            lc_assertive=3.0,
+            lc_cooperative=0.2,
             lc_keep_right=0.2,
         )
-    )  # fmt: skip
+    )
     conservative: SumoDriver = field(
         default_factory=lambda: SumoDriver(
-            speed_factor=0.85, speed_dev=0.05, tau=1.8, accel=1.5, decel=3.0, min_gap=3.0,
-            sigma=0.2, lc_speed_gain=0.3, lc_assertive=0.8, lc_cooperative=1.0,
+            speed_factor=0.85,
+            speed_dev=0.05,
+            tau=1.8,
+            accel=1.5,
+            decel=3.0,
+            min_gap=3.0,
+            sigma=0.2,
+            lc_speed_gain=0.3,
+            lc_assertive=0.8,
+            lc_cooperative=1.0,
             lc_keep_right=3.0,
         )
-    )  # fmt: skip
+    )
 
     def __post_init__(self) -> None:
         check(self.lanes >= 1, "sumo.lanes", self.lanes, "must be >= 1")
@@ -151,10 +167,19 @@ def _network(folder: Path, cfg: SumoConfig) -> Path:
     )
     net = folder / "net.xml"
     subprocess.run(
-        [str(sumo_home() / "bin" / "netconvert"), "-n", str(folder / "n.nod.xml"),
-         "-e", str(folder / "e.edg.xml"), "-o", str(net), "--no-turnarounds"],
-        check=True, capture_output=True,
-    )  # fmt: skip
+        [
+            str(sumo_home() / "bin" / "netconvert"),
+            "-n",
+            str(folder / "n.nod.xml"),
+            "-e",
+            str(folder / "e.edg.xml"),
+            "-o",
+            str(net),
+            "--no-turnarounds",
+        ],
+        check=True,
+        capture_output=True,
+    )
     return net
 
 
@@ -181,6 +206,36 @@ def _routes(folder: Path, cfg: SumoConfig) -> Path:
     return routes
 
 
+def _sumo_command(cfg: SumoConfig, net: Path, routes: Path, dt: float, seed: int) -> list[str]:
+    """SUMO's command line: the road, the flows, the step, the seed and the lane changes."""
+    options = {
+        "-n": net,
+        "-r": routes,
+        "--step-length": dt,
+        "--seed": seed,
+        "--lanechange.duration": cfg.lane_change_duration,
+        "--default.action-step-length": dt,
+    }
+    pairs = [text for key, value in options.items() for text in (key, str(value))]
+    return ["sumo", *pairs, "--no-step-log", "--no-warnings"]
+
+
+def _as_table(rows: list[tuple], times: list[float], episode: int, lanes: int) -> pd.DataFrame:
+    """The recorded rows as bgap's trajectory table: the ego is vehicle 0, time from SUMO's
+    clock, lanes numbered from the left."""
+    table = pd.DataFrame(rows, columns=["sumo_id", "frame", "x", "y", "vx", "vy", "lane", "label"])
+    ids = ["ego", *sorted(set(table.sumo_id) - {"ego"})]  # the ego is vehicle 0
+    table["vehicle_id"] = table.sumo_id.map({v: i for i, v in enumerate(ids)}).astype(np.int32)
+    table["episode"] = np.int32(episode)
+    table["time"] = (np.asarray(times) - times[0])[table.frame]  # SUMO's clock
+    table["is_ego"] = table.label == "ego"
+    table["speed"] = np.hypot(table.vx, table.vy)
+    # SUMO numbers lanes from the right; bgap (highway-env) from the left
+    table["lane"] = (lanes - 1 - table.lane).astype(np.int16)
+    table["crashed"] = False
+    return table.drop(columns="sumo_id")
+
+
 def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
     """One SUMO run: warm-up, the ego's insertion, ``duration`` seconds recorded."""
     # Imported here: SUMO is an optional extra (pip install -e '.[sumo]').
@@ -190,18 +245,18 @@ def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
     try:
         net, routes = _network(folder, cfg), _routes(folder, cfg)
         dt = round(1.0 / cfg.fps, 3)  # SUMO's clock counts milliseconds: 15 Hz is 0.067 s
-        traci.start(
-            ["sumo", "-n", str(net), "-r", str(routes), "--step-length", str(dt),
-             "--seed", str(seed), "--no-step-log", "--no-warnings",
-             "--lanechange.duration", str(cfg.lane_change_duration),
-             "--default.action-step-length", str(dt)]
-        )  # fmt: skip
+        traci.start(_sumo_command(cfg, net, routes, dt, seed))
         for _ in range(int(round(cfg.warmup / dt))):
             traci.simulationStep()
         traci.vehicle.add(
-            "ego", "r", typeID="ego", depart="now", departLane="free",
-            departPos=str(cfg.ego_position), departSpeed="desired",
-        )  # fmt: skip
+            "ego",
+            "r",
+            typeID="ego",
+            depart="now",
+            departLane="free",
+            departPos=str(cfg.ego_position),
+            departSpeed="desired",
+        )
         rows, times = [], []
         frame, waited = 0, 0
         while frame < int(round(cfg.duration / dt)):
@@ -222,24 +277,22 @@ def record_episode(cfg: SumoConfig, seed: int, episode: int) -> pd.DataFrame:
                 x, y = traci.vehicle.getPosition(v)
                 speed = traci.vehicle.getSpeed(v)
                 rows.append(
-                    (v, frame, x, y, speed, traci.vehicle.getLateralSpeed(v),
-                     traci.vehicle.getLaneIndex(v), traci.vehicle.getTypeID(v))
-                )  # fmt: skip
+                    (
+                        v,
+                        frame,
+                        x,
+                        y,
+                        speed,
+                        traci.vehicle.getLateralSpeed(v),
+                        traci.vehicle.getLaneIndex(v),
+                        traci.vehicle.getTypeID(v),
+                    )
+                )
             frame += 1
         traci.close()
     finally:
         shutil.rmtree(folder, ignore_errors=True)
-    table = pd.DataFrame(rows, columns=["sumo_id", "frame", "x", "y", "vx", "vy", "lane", "label"])
-    ids = ["ego", *sorted(set(table.sumo_id) - {"ego"})]  # the ego is vehicle 0
-    table["vehicle_id"] = table.sumo_id.map({v: i for i, v in enumerate(ids)}).astype(np.int32)
-    table["episode"] = np.int32(episode)
-    table["time"] = (np.asarray(times) - times[0])[table.frame]  # SUMO's clock
-    table["is_ego"] = table.label == "ego"
-    table["speed"] = np.hypot(table.vx, table.vy)
-    # SUMO numbers lanes from the right; bgap (highway-env) from the left
-    table["lane"] = (cfg.lanes - 1 - table.lane).astype(np.int16)
-    table["crashed"] = False
-    return table.drop(columns="sumo_id")
+    return _as_table(rows, times, episode, cfg.lanes)
 
 
 def record(cfg: SumoConfig, episodes: int, seed: int, progress=None) -> pd.DataFrame:

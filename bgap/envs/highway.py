@@ -158,9 +158,12 @@ class BehaviorHighwayEnv(HighwayEnv):
         )
         self.replay_steps = window.frames // per_step  # policy steps the window holds
         scene = ReplayScene(
-            self.road, window, self.config["behavior"], traffic["mode"] == "reactive",
+            self.road,
+            window,
+            self.config["behavior"],
+            traffic["mode"] == "reactive",
             self.np_random,
-        )  # fmt: skip
+        )
         position, heading, speed = scene.ego_state()
         ego = self.action_type.vehicle_class(self.road, position, heading, speed)
         ego.bgap_label, ego.color = EGO, COLORS[EGO]

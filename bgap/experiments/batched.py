@@ -143,8 +143,10 @@ def train_members_on_node(base: Path, cfgs: list[ExperimentConfig]) -> None:
 
 def _on_node(base: Path, cfgs: list[ExperimentConfig]) -> list[ExperimentConfig]:
     group = base / f"batched-{digest([run_name(c) for c in cfgs])}"
-    return [replace(c, run_dir=str(group), root=str(base), cluster=ClusterConfig(),
-                    resume=True) for c in cfgs]  # fmt: skip
+    return [
+        replace(c, run_dir=str(group), root=str(base), cluster=ClusterConfig(), resume=True)
+        for c in cfgs
+    ]
 
 
 def _open_and_train(
@@ -160,8 +162,9 @@ def _open_and_train(
             raise ConfigError(
                 f"{dirs[i]} holds a checkpoint of the sb3 learner: resume it with learner=sb3"
             )
-    _train_members([cfgs[i] for i in todo], [dirs[i] for i in todo], resuming, progress,
-                   sb3_streams)  # fmt: skip
+    _train_members(
+        [cfgs[i] for i in todo], [dirs[i] for i in todo], resuming, progress, sb3_streams
+    )
 
 
 def _train_members(
@@ -172,9 +175,13 @@ def _train_members(
     sb3_streams: bool = False,
 ) -> None:
     members = _Members(cfgs, dirs, resuming, sb3_streams)
-    bar = tqdm(total=int(members.p.train_steps * len(cfgs)),
-               initial=int(members.learner.num_timesteps.sum()), disable=not progress,
-               unit="step", desc=f"{len(cfgs)} trainings")  # fmt: skip
+    bar = tqdm(
+        total=int(members.p.train_steps * len(cfgs)),
+        initial=int(members.learner.num_timesteps.sum()),
+        disable=not progress,
+        unit="step",
+        desc=f"{len(cfgs)} trainings",
+    )
     try:
         with CtrlC() as interrupted:
             for k in np.flatnonzero(~members.active):  # resumed at its budget: only the end
@@ -217,13 +224,18 @@ class _Members:
         self.space = space = self.groups[0].venv.single_observation_space
         action_space = self.groups[0].venv.single_action_space
         schedule = Schedule(
-            e, self.p.train_steps,
+            e,
+            self.p.train_steps,
             self.p.exploration_decay_steps or self.first.agent.exploration_decay_steps,
-        )  # fmt: skip
+        )
         self.learner = BatchedDQN(
-            self.first.agent, schedule, [c.seed for c in cfgs], int(np.prod(space.shape)),
-            int(action_space.n), sb3_streams=sb3,
-        )  # fmt: skip
+            self.first.agent,
+            schedule,
+            [c.seed for c in cfgs],
+            int(np.prod(space.shape)),
+            int(action_space.n),
+            sb3_streams=sb3,
+        )
         if sb3:
             np.random.seed(self.first.seed)  # noqa: NPY002 (SB3's set_random_seed)
         self.writers = [SummaryWriter(str(d / "tb" / "batched_1")) for d in dirs]
@@ -243,9 +255,11 @@ class _Members:
         for key in dict.fromkeys(keys):
             members = [k for k, other in enumerate(keys) if other == key]
             venv = make_vector_env(
-                configs[members[0]], len(members) * self.e, self.first.backend,
+                configs[members[0]],
+                len(members) * self.e,
+                self.first.backend,
                 asynchronous=self.first.backend == "highway",
-            )  # fmt: skip
+            )
             venv = with_features(venv, self.cfgs[members[0]].agent.observation, configs[members[0]])
             groups.append(_Group(venv, members, self.e))
         shape = groups[0].venv.single_observation_space.shape
@@ -264,21 +278,31 @@ class _Members:
             self.writers[k].add_scalar(key, value, int(self.learner.num_timesteps[k]))
 
         return TrainingMonitor(
-            self.dirs[k], self.e, env_config(c), c.backend, max_episodes=p.train_episodes,
-            eval_every=p.eval_every_episodes, eval_episodes=p.eval_during_training,
-            eval_seed=validation_seed(c), checkpoint_rule=p.checkpoint_rule, log=log,
-        )  # fmt: skip
+            self.dirs[k],
+            self.e,
+            env_config(c),
+            c.backend,
+            max_episodes=p.train_episodes,
+            eval_every=p.eval_every_episodes,
+            eval_episodes=p.eval_during_training,
+            eval_seed=validation_seed(c),
+            checkpoint_rule=p.checkpoint_rule,
+            log=log,
+        )
 
     def _reset(self, space: gym.Space, resuming: list[bool]) -> np.ndarray:
         """The first observations, each resumed member's learner, monitor and (on the vector
         backend) environments restored from its checkpoint."""
         cfgs, dirs, e = self.cfgs, self.dirs, self.e
         states = [
-            read_checkpoint(d / "checkpoints", lambda d=d: pickle.loads(
-                (d / "checkpoints" / CHECKPOINT_STATE).read_bytes()
-            )) if res else None
+            read_checkpoint(
+                d / "checkpoints",
+                lambda d=d: pickle.loads((d / "checkpoints" / CHECKPOINT_STATE).read_bytes()),
+            )
+            if res
+            else None
             for d, res in zip(dirs, resuming, strict=True)
-        ]  # fmt: skip
+        ]
         obs = np.zeros((len(cfgs), e, *space.shape), dtype=np.float32)
         for g in self.groups:
             seeds = []
@@ -363,10 +387,13 @@ class _Members:
         for k in members:
             self.monitors[k].state["steps"] = int(learner.num_timesteps[k])
             go_on = self.monitors[k].on_step(
-                rewards[k], infos[k], terminated[k] | truncated[k],
-                _MemberPolicy(learner, k, self.save_model, self.first.agent.observation,
-                              self.space),
-            )  # fmt: skip
+                rewards[k],
+                infos[k],
+                terminated[k] | truncated[k],
+                _MemberPolicy(
+                    learner, k, self.save_model, self.first.agent.observation, self.space
+                ),
+            )
             if go_on:
                 keep.append(k)
             else:  # the episode budget: SB3 stops before storing this transition

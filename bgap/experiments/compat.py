@@ -25,10 +25,19 @@ ADDED_LATER = {
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""
 ADDED_WITH_ALGOS = {
-    "algo": "dqn", "extractor": "flatten", "attention_dim": 64, "attention_heads": 2,
-    "n_quantiles": 25, "n_steps": 128, "n_epochs": 10, "gae_lambda": 0.95,
-    "clip_range": 0.2, "ent_coef": 0.0, "vf_coef": 0.5, "observation": [],
-}  # fmt: skip
+    "algo": "dqn",
+    "extractor": "flatten",
+    "attention_dim": 64,
+    "attention_heads": 2,
+    "n_quantiles": 25,
+    "n_steps": 128,
+    "n_epochs": 10,
+    "gae_lambda": 0.95,
+    "clip_range": 0.2,
+    "ent_coef": 0.0,
+    "vf_coef": 0.5,
+    "observation": [],
+}
 """The ``agent`` settings that came with the algorithms beside DQN and the observation
 options (the learner arms), at the values every earlier training had: read into configs saved
 before them, and left out of a training's identity at these values (its run folder keeps
@@ -58,8 +67,11 @@ def as_before(settings: dict[str, Any]) -> dict[str, Any]:
     their names."""
     settings = dict(settings)
     if isinstance(settings.get("agent"), dict):
-        settings["agent"] = {k: v for k, v in settings["agent"].items()
-                             if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v}  # fmt: skip
+        settings["agent"] = {
+            k: v
+            for k, v in settings["agent"].items()
+            if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v
+        }
     if (settings.get("traffic") or {}).get("source", "simulated") == "simulated":
         settings.pop("traffic", None)
     return settings

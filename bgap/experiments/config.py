@@ -315,10 +315,18 @@ class SweepConfig(ExperimentConfig):
         check(0 < self.rule_floor <= 2, "rule_floor", self.rule_floor, "a fraction in (0, 2]")
         check(self.stock_margin >= 0, "stock_margin", self.stock_margin, "must be >= 0")
         check(self.trials >= 1, "trials", self.trials, "must be >= 1")
-        check(self.sweep_eval_episodes >= 1, "sweep_eval_episodes", self.sweep_eval_episodes,
-              "must be >= 1")  # fmt: skip
-        check(self.prune_every >= 0, "prune_every", self.prune_every,
-              "must be >= 0 (0: a quarter of the training budget)")  # fmt: skip
+        check(
+            self.sweep_eval_episodes >= 1,
+            "sweep_eval_episodes",
+            self.sweep_eval_episodes,
+            "must be >= 1",
+        )
+        check(
+            self.prune_every >= 0,
+            "prune_every",
+            self.prune_every,
+            "must be >= 0 (0: a quarter of the training budget)",
+        )
         check(
             self.mode != "rule" or self.policy == "behavior_rich",
             "policy",

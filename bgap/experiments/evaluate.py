@@ -89,17 +89,24 @@ def grid_cells(cfg: ExperimentConfig) -> list[Cell]:
     """The cells of ``cfg.grid``; empty axes take the run's own mix, density and radius.
     Replay cells (``grid.replays``) follow the simulated ones: each table x mode x radius."""
     g = cfg.grid
-    cells = [
-        Cell(float(m), str(d), float(r))
-        for d in (g.densities or [cfg.env.name])
-        for m in (g.mixes or [cfg.mix])
-        for r in (g.radii or [cfg.radius])
-    ] if g.simulated else []  # fmt: skip
+    cells = (
+        [
+            Cell(float(m), str(d), float(r))
+            for d in (g.densities or [cfg.env.name])
+            for m in (g.mixes or [cfg.mix])
+            for r in (g.radii or [cfg.radius])
+        ]
+        if g.simulated
+        else []
+    )
     for density, table in g.replay_tables():
         env = env_preset(density) if density else cfg.env
         share = replay_mix(table, env.simulation_frequency, cfg.traffic.min_duration)
-        cells += [Cell(share, env.name, float(r), table, mode)
-                  for mode in g.modes for r in (g.radii or [cfg.radius])]  # fmt: skip
+        cells += [
+            Cell(share, env.name, float(r), table, mode)
+            for mode in g.modes
+            for r in (g.radii or [cfg.radius])
+        ]
     return cells
 
 
@@ -117,8 +124,7 @@ def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
     env = cfg.env if cell.density == cfg.env.name else env_preset(cell.density)
     traffic = cfg.traffic
     if cell.table:
-        traffic = replace(traffic, name="replay", source="replay", table=cell.table,
-                          mode=cell.mode)  # fmt: skip
+        traffic = replace(traffic, name="replay", source="replay", table=cell.table, mode=cell.mode)
     return env_config(replace(cfg, env=env, mix=cell.mix, radius=cell.radius, traffic=traffic))
 
 
@@ -273,9 +279,13 @@ def evaluate(
 
 
 def _play(
-    cfg: ExperimentConfig, jobs: list[tuple], chunk: int, workers: int, progress: bool,
+    cfg: ExperimentConfig,
+    jobs: list[tuple],
+    chunk: int,
+    workers: int,
+    progress: bool,
     policies: dict[str, Any],
-) -> list[dict]:  # fmt: skip
+) -> list[dict]:
     """Every job of :func:`evaluate` (:func:`bgap.runner.jobs.run_jobs`: here, in worker
     processes of one thread each, or as Ray tasks). One thread: a process's kernels and its
     policies' forward passes alternate, so a process with threads leaves cores idle."""
@@ -285,10 +295,14 @@ def _play(
         jobs = [(name, shipped[name], *rest) for name, _, *rest in jobs]
     try:
         parts = run_jobs(
-            _evaluate_job, jobs, workers=workers, numba_threads=1, cluster=cfg.cluster,
+            _evaluate_job,
+            jobs,
+            workers=workers,
+            numba_threads=1,
+            cluster=cfg.cluster,
             done=lambda k, part: bar.update(chunk),
             kept="no episode was written; the same command plays them again",
-        )  # fmt: skip
+        )
     finally:
         bar.close()
     return [row for part in parts for row in part]
@@ -324,8 +338,9 @@ def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
         summary = summarize(episodes)
         seeds = [cfg.eval_seed + k for k in range(cfg.profile.eval_episodes)]
         configs = [cell_env_config(cfg, cell) for cell in cells]
-        inputs = traffic_inputs([c.key for c in cells], configs, [c.table for c in cells],
-                                seeds, asdict(cfg.behavior))  # fmt: skip
+        inputs = traffic_inputs(
+            [c.key for c in cells], configs, [c.table for c in cells], seeds, asdict(cfg.behavior)
+        )
         write_results(out, episodes, summary, inputs)
         models = model_records(specs)
         if len(models):

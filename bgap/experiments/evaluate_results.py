@@ -21,9 +21,15 @@ from bgap.common.runs import write_atomic
 from bgap.common.vocab import CRASH_KINDS
 
 STORED = {
-    "avg_speed": "float32", "distance": "float32", "return": "float32", "lane_changes": "int16",
-    "steps": "int16", "seed": "int64", "mix": "float64", "radius": "float64",
-}  # fmt: skip
+    "avg_speed": "float32",
+    "distance": "float32",
+    "return": "float32",
+    "lane_changes": "int16",
+    "steps": "int16",
+    "seed": "int64",
+    "mix": "float64",
+    "radius": "float64",
+}
 """Stored types of the episode columns: single precision (7 digits) for the per-episode
 measures keeps the study's episodes in a few MB of parquet. The commands apply it before
 they summarise, so every summary, figure and claim reads the numbers that are stored
@@ -75,8 +81,12 @@ def exposure(episodes: pd.DataFrame) -> dict[str, float]:
     if "distance" not in episodes:
         return {}
     rate, lo, hi = per_100km(episodes.crashed.to_numpy(), episodes.distance.to_numpy(float))
-    return {"km": float(episodes.distance.sum()) / 1000, "per_100km": rate,
-            "per_100km_lo": lo, "per_100km_hi": hi}  # fmt: skip
+    return {
+        "km": float(episodes.distance.sum()) / 1000,
+        "per_100km": rate,
+        "per_100km_lo": lo,
+        "per_100km_hi": hi,
+    }
 
 
 def crash_split(episodes: pd.DataFrame) -> dict[str, float]:

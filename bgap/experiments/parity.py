@@ -178,22 +178,38 @@ class ParityConfig:
     def __post_init__(self) -> None:
         check(self.episodes >= 1, "episodes", self.episodes, "must be a whole number >= 1")
         if self.duration is not None:
-            check(math.isfinite(self.duration) and self.duration > 0, "duration", self.duration,
-                  "must be a finite number of seconds > 0")  # fmt: skip
-        check(all(0 <= m <= 1 for m in self.mixes), "mixes", self.mixes,
-              "every mix must lie in [0, 1]")  # fmt: skip
+            check(
+                math.isfinite(self.duration) and self.duration > 0,
+                "duration",
+                self.duration,
+                "must be a finite number of seconds > 0",
+            )
+        check(
+            all(0 <= m <= 1 for m in self.mixes),
+            "mixes",
+            self.mixes,
+            "every mix must lie in [0, 1]",
+        )
         self.mixes = [float(m) + 0.0 for m in self.mixes]  # -0.0 is 0.0
         unknown = sorted(set(self.backends) - {"vector", "highway"})
         check(not unknown, "backends", self.backends, "use [vector], [highway] or [vector,highway]")
-        check(0 <= self.seed <= SEED_MAX - self.episodes, "seed", self.seed,
-              f"must lie in [0, {SEED_MAX} - episodes] (numpy's seeds)")  # fmt: skip
+        check(
+            0 <= self.seed <= SEED_MAX - self.episodes,
+            "seed",
+            self.seed,
+            f"must lie in [0, {SEED_MAX} - episodes] (numpy's seeds)",
+        )
 
 
 SCHEMAS = ((None, "base_parity", ParityConfig),)
 
 
-@app("parity", "bgap.parity", SCHEMAS,
-     "the episodes played so far are in out/episodes.csv; add reuse=true to keep them")  # fmt: skip
+@app(
+    "parity",
+    "bgap.parity",
+    SCHEMAS,
+    "the episodes played so far are in out/episodes.csv; add reuse=true to keep them",
+)
 def _hydra_main(dcfg: DictConfig) -> None:
     _parity(load(dcfg))
 
@@ -215,8 +231,10 @@ def _kept_rows(path: Path, backends: list[str], mixes: list[float], seeds: list[
     old = read_csv(path)
     missing = {"seed", "mix", "backend"} - set(old.columns)
     if missing:
-        raise ConfigError(f"{path} is not a bgap.parity episode table (no {sorted(missing)} "
-                          "column); give another out= or leave out reuse=true")  # fmt: skip
+        raise ConfigError(
+            f"{path} is not a bgap.parity episode table (no {sorted(missing)} "
+            "column); give another out= or leave out reuse=true"
+        )
     kept = old[~old.backend.isin(backends)]
     want = {(m, s) for m in mixes for s in seeds}
     for backend, rows in kept.groupby("backend"):
@@ -239,15 +257,21 @@ def _parity(args: ParityConfig) -> None:
     earlier = [n for n in WRITTEN if (out / n).exists()]
     if earlier and not args.reuse:  # a rerun never overwrites an earlier result (the
         # pipeline's stage starts without them: DVC removes a stage's outputs first)
-        raise ConfigError(f"{out} holds the results of an earlier run ({', '.join(earlier)}); "
-                          "give another out=, or reuse=true to keep its episodes")  # fmt: skip
+        raise ConfigError(
+            f"{out} holds the results of an earlier run ({', '.join(earlier)}); "
+            "give another out=, or reuse=true to keep its episodes"
+        )
     frames = []
     if args.reuse and (out / "episodes.csv").exists():
         frames.append(_kept_rows(out / "episodes.csv", backends, mixes, seeds))
     compared = set(backends).union(*(set(f.backend) for f in frames))
-    check(compared == {"vector", "highway"}, "backends", args.backends,
-          "parity compares both backends: give [vector,highway], or one of them with "
-          "reuse=true of an out= holding the other's episodes")  # fmt: skip
+    check(
+        compared == {"vector", "highway"},
+        "backends",
+        args.backends,
+        "parity compares both backends: give [vector,highway], or one of them with "
+        "reuse=true of an out= holding the other's episodes",
+    )
     with exclusive(out):
         for mix in tqdm(mixes, desc="mixes"):
             overrides = [f"env={args.env}", f"mix={mix}"]

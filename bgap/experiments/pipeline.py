@@ -52,8 +52,10 @@ def _hydra_main(dcfg: DictConfig) -> None:
             raise ConfigError("trials=save needs study=NAME (the search's study name)")
         n = trial_log.save(storage, cfg.study, cfg.log)
         hours, timed = trial_log.trial_hours(cfg.log)
-        print(f"{n} finished trials of {cfg.study} -> {cfg.log} ({hours:.2f} h of trial time "
-              f"over the {timed} whose times are known)")  # fmt: skip
+        print(
+            f"{n} finished trials of {cfg.study} -> {cfg.log} ({hours:.2f} h of trial time "
+            f"over the {timed} whose times are known)"
+        )
     else:
         n = trial_log.restore(storage, cfg.log)
         print(f"{n} trials from {cfg.log} -> {storage}; rerun the search's command to continue")
@@ -65,8 +67,11 @@ def main(argv: list[str] | None = None) -> None:
     if argv is not None:
         sys.argv[1:] = argv
     if sys.argv[1:2] in (["deps"], ["relock"]):
-        fail("bgap.pipeline", "deps and relock are a developer tool now: python "
-             "tools/relock.py deps|relock in a checkout")  # fmt: skip
+        fail(
+            "bgap.pipeline",
+            "deps and relock are a developer tool now: python "
+            "tools/relock.py deps|relock in a checkout",
+        )
     if sys.argv[1:2] == ["trials"]:  # the older form: trials ACTION LOG --options
         older = [f"{k}={v}" for k, v in zip(("trials", "log"), sys.argv[2:4], strict=False)]
         sys.argv[1:] = [*older, *sys.argv[4:]]

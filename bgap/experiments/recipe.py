@@ -61,16 +61,9 @@ from bgap.experiments.recipe_report import (
     markdown_levers,
     plot_curves,
 )
-from bgap.experiments.sweep import (
-    figures_with_rule,
-    finished,
-    rule_score,
-    study_name,
-    sweep,
-    validation_episodes,
-    write_outputs,
-)
+from bgap.experiments.sweep import finished, study_name, sweep, write_outputs
 from bgap.experiments.train import SIDE_BY_SIDE_STEPS, train
+from bgap.experiments.validation import figures_with_rule, rule_score, validation_episodes
 from bgap.runner.jobs import run_jobs
 
 GROUPS = ("reward", "agent")
@@ -210,8 +203,11 @@ def train_overrides(cfg: RecipeConfig, v: Variant, seed: int) -> list[str]:
     profile (the same budget, part of the study's identity, and the periodic validation
     whose curves the check plots)."""
     overrides = [o for o in v.overrides if not o.startswith(("seed=", "profile.", "profile="))]
-    budget = [f"profile.{key}={'null' if value is None else value}" for key, value in
-              asdict(cfg.profile).items() if key != "name"]  # fmt: skip
+    budget = [
+        f"profile.{key}={'null' if value is None else value}"
+        for key, value in asdict(cfg.profile).items()
+        if key != "name"
+    ]
     return [*overrides, f"profile={cfg.profile.name}", *budget, f"seed={seed}"]
 
 
@@ -367,9 +363,11 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         "trial": trial.number,
         "params": trial.params,
         "sweep": {k: v for k, v in trial.user_attrs.items() if k != "overrides"},
-        "check": {k: (None if isinstance(v, float) and np.isnan(v) else v)
-                  for k, v in best.to_dict().items()},
-    }  # fmt: skip
+        "check": {
+            k: (None if isinstance(v, float) and np.isnan(v) else v)
+            for k, v in best.to_dict().items()
+        },
+    }
     write_atomic(out / "chosen.json", json.dumps(chosen, indent=1, default=float))
     paths.update(
         candidates=out / "candidates.csv",

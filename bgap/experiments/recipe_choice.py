@@ -12,13 +12,14 @@ import pandas as pd
 from bgap.analysis.stats import poisson_interval, t_interval, wilson_interval
 from bgap.common.vocab import CRASH_KINDS
 from bgap.experiments.config import RecipeConfig
-from bgap.experiments.sweep import RULE_KEYS, objective, rule_score
+from bgap.experiments.sweep import RULE_KEYS, objective
+from bgap.experiments.validation import rule_score
 
 
 def choose_by_rule(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
     """Mode ``rule``: per candidate, the means over seeds of :data:`RULE_KEYS`, 95% t
     intervals across seeds of the policies' rates and speeds, and the objective of the means
-    (:func:`~bgap.experiments.sweep.rule_score`); best first."""
+    (:func:`~bgap.experiments.validation.rule_score`); best first."""
     rows = []
     for trial, g in table.groupby("trial"):
         row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
@@ -42,8 +43,12 @@ def choose_by_rule(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows).sort_values(["objective", "trial"]).reset_index(drop=True)
 
 
-STOCK_KEYS = ("stock_collision_pct", "stock_avg_speed", "stock_idle_collision_pct",
-              "stock_idle_avg_speed")  # fmt: skip
+STOCK_KEYS = (
+    "stock_collision_pct",
+    "stock_avg_speed",
+    "stock_idle_collision_pct",
+    "stock_idle_avg_speed",
+)
 """The default policy's figures in stock traffic (``stock_check``), per check seed."""
 
 
@@ -64,16 +69,24 @@ def choose(cfg: RecipeConfig, table: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for trial, g in table.groupby("trial"):
         row: dict[str, Any] = {"trial": trial, "seeds": len(g)}
-        for key in ("collision_pct", "avg_speed", "idle_collision_pct", "idle_avg_speed",
-                    "rule_collision_pct", "rule_avg_speed", "lane_changes",
-                    *(f"{kind}_pct" for kind in CRASH_KINDS),
-                    *(STOCK_KEYS if stock else ())):  # fmt: skip
+        for key in (
+            "collision_pct",
+            "avg_speed",
+            "idle_collision_pct",
+            "idle_avg_speed",
+            "rule_collision_pct",
+            "rule_avg_speed",
+            "lane_changes",
+            *(f"{kind}_pct" for kind in CRASH_KINDS),
+            *(STOCK_KEYS if stock else ()),
+        ):
             row[key] = float(g[key].mean()) if key in g else 0.0
         for key, top in (("collision_pct", 100.0), ("avg_speed", np.inf)):
             lo, hi = t_interval(g[key].to_numpy())
             row[f"{key}_lo"], row[f"{key}_hi"] = max(lo, 0.0), min(hi, top)
-        row["objective"] = objective(cfg, row["collision_pct"], row["avg_speed"],
-                                     row["idle_avg_speed"])  # fmt: skip
+        row["objective"] = objective(
+            cfg, row["collision_pct"], row["avg_speed"], row["idle_avg_speed"]
+        )
         if stock:
             row["stock_rule"] = meets_stock_rule(cfg, row)
         rows.append(row)

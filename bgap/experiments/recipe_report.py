@@ -179,9 +179,11 @@ def plot_curves(
             ax.plot(ev.gradient_updates, ev[key].rolling(5, min_periods=1).mean(), label=label)
     first = next(iter(found.values()))
     for ax, key, label in zip(
-        axes, ("collision_pct", "avg_speed"), ("collisions [% episodes]", "mean speed [m/s]"),
+        axes,
+        ("collision_pct", "avg_speed"),
+        ("collisions [% episodes]", "mean speed [m/s]"),
         strict=True,
-    ):  # fmt: skip
+    ):
         for name, style in (("idle", "--"), ("rule", ":")):
             ax.axhline(first[f"{name}_{key}"].iloc[-1], ls=style, color="gray", label=name)
         ax.set_xlabel("gradient updates")

@@ -40,7 +40,7 @@ from bgap.common.runs import (
 )
 from bgap.experiments.compat import upgrade
 from bgap.experiments.config import ExperimentConfig, compose
-from bgap.experiments.sweep import figures_with_rule, split_rule
+from bgap.experiments.validation import figures_with_rule, split_rule
 from bgap.runner.jobs import run_jobs
 
 __all__ = ["SelectConfig", "groups", "main", "markdown", "run_config", "runs", "select"]
@@ -65,8 +65,15 @@ def runs(root: Path) -> pd.DataFrame:
         if not (folder / CONFIG).exists():
             continue
         cfg = run_config(folder)
-        rows.append({"run": folder, "density": cfg.env.name, "policy": cfg.policy,
-                     "seed": cfg.seed, "config": cfg})  # fmt: skip
+        rows.append(
+            {
+                "run": folder,
+                "density": cfg.env.name,
+                "policy": cfg.policy,
+                "seed": cfg.seed,
+                "config": cfg,
+            }
+        )
     if not rows:
         raise FileNotFoundError(f"no run folders ({MODEL} with {CONFIG}) in {root}")
     return pd.DataFrame(rows).sort_values(["density", "policy", "seed"], ignore_index=True)
@@ -91,8 +98,9 @@ def _validate(job: tuple[ExperimentConfig, str, int]) -> dict[str, Any]:
     return figures_with_rule(str(model_file(run_dir, "best")), cfg, episodes)
 
 
-def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
-           workers: int = 1) -> pd.DataFrame:  # fmt: skip
+def select(
+    runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int, workers: int = 1
+) -> pd.DataFrame:
     """Validate every run under ``runs_dir``, keep the best of each group (copied under
     ``out``), and write the table to ``table_dir``; returns it."""
     for folder in dict.fromkeys((out, table_dir)):
@@ -102,8 +110,13 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
                 f"{folder} holds an earlier selection; give another folder, or remove it to "
                 "select again"
             )
-    settings = {"runs": str(runs_dir), "group": k, "episodes": episodes, "out": str(out),
-                "table": str(table_dir)}  # fmt: skip
+    settings = {
+        "runs": str(runs_dir),
+        "group": k,
+        "episodes": episodes,
+        "out": str(out),
+        "table": str(table_dir),
+    }
     for folder in dict.fromkeys((out, table_dir)):
         save_run_metadata(folder, OmegaConf.create(settings), upgrade=upgrade)
     table = runs(runs_dir)
@@ -119,8 +132,9 @@ def select(runs_dir: Path, out: Path, table_dir: Path, k: int, episodes: int,
     best = table.sort_values("seed").groupby(["density", "policy", "group"]).score.idxmin()
     table["kept"] = table.index.isin(best)
     for row in table[table.kept].itertuples():
-        shutil.copytree(row.run, out / row.density / row.run.name,
-                        ignore=shutil.ignore_patterns(*SKIPPED))  # fmt: skip
+        shutil.copytree(
+            row.run, out / row.density / row.run.name, ignore=shutil.ignore_patterns(*SKIPPED)
+        )
     table_dir.mkdir(parents=True, exist_ok=True)
     written = table.assign(run=table.run.map(str))
     write_atomic(table_dir / "selection.csv", lambda p: written.to_csv(p, index=False))

@@ -33,24 +33,29 @@ from omegaconf import DictConfig
 from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
-from bgap.agents.policies import baseline, load_model, rollout
-from bgap.analysis.stats import per_100km, policy_score, rule_objective
+from bgap.agents.policies import baseline, load_model
+from bgap.analysis.stats import policy_score
 from bgap.common import studies
 from bgap.common.config import app, load, validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import VOLATILE, digest, write_atomic
-from bgap.common.scores import constrained_score, episode_distance
+from bgap.common.scores import constrained_score
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments import trial_log
 from bgap.experiments.compat import as_before
 from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
-from bgap.experiments.training import training_config
+from bgap.experiments.validation import (
+    evaluate_model,
+    figures_with_rule,
+    rule_score,
+    split_rule,
+    validation_rates,
+)
 from bgap.runner.cluster import ENV_ADDRESS, ClusterConfig
 from bgap.runner.jobs import run_jobs
-from bgap.traffic.scenario import env_config
 
 RULE_KEYS = tuple(
     f"{policy}{who}{k}"
@@ -101,10 +106,22 @@ def suggest(trial: optuna.Trial, space: dict[str, dict[str, Any]]) -> dict[str, 
 
 
 STUDY_VOLATILE = (
-    *VOLATILE, "trials", "storage", "study", "trial_log", "write_preset", "preset", "seeds",
+    *VOLATILE,
+    "trials",
+    "storage",
+    "study",
+    "trial_log",
+    "write_preset",
+    "preset",
+    "seeds",
     # bgap.recipe's settings of what follows the sweep
-    "candidates", "check_seeds", "check_episodes", "preset_dir", "preset_name", "levers",
-)  # fmt: skip
+    "candidates",
+    "check_seeds",
+    "check_episodes",
+    "preset_dir",
+    "preset_name",
+    "levers",
+)
 """Sweep settings that do not change a trial's value (the trial budget may grow on a rerun)."""
 
 
@@ -134,67 +151,6 @@ class PruneCallback(BaseCallback):
             if self.trial.should_prune():
                 raise optuna.TrialPruned()
         return True
-
-
-def evaluate_model(model, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
-    """Collision % and average speed of the greedy model on the validation episodes of its
-    own training traffic (the mix drawn as in training)."""
-    return _validation(model, cfg, episodes)
-
-
-def validation_episodes(policy, cfg: ExperimentConfig, episodes: int) -> pd.DataFrame:
-    """``policy`` on the first ``episodes`` validation episodes (seeds ``val_seed + k``) of
-    ``cfg``'s training traffic, its mix drawn as in training."""
-
-    cfg = training_config(cfg)
-    seeds = range(cfg.val_seed, cfg.val_seed + episodes)
-    return rollout(env_config(cfg, cfg.mix_sampling), policy, seeds, cfg.backend).episodes
-
-
-def _validation(policy, cfg: ExperimentConfig, episodes: int) -> tuple[float, float]:
-    rows = validation_episodes(policy, cfg, episodes)
-    return 100.0 * float(rows.crashed.mean()), float(rows.avg_speed.mean())
-
-
-def validation_figures(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float]:
-    """``collision_pct``, ``per_100km`` (collisions per 100 km of ego travel) and
-    ``avg_speed`` of ``policy`` on :func:`validation_episodes`, with the counts behind them
-    (``crashes``, ``episodes``, ``km``)."""
-    rows = validation_episodes(policy, cfg, episodes)
-    distance = episode_distance(rows, cfg.env.policy_frequency)
-    return {
-        "collision_pct": 100.0 * float(rows.crashed.mean()),
-        "per_100km": per_100km(rows.crashed.to_numpy(), distance.to_numpy())[0],
-        "avg_speed": float(rows.avg_speed.mean()),
-        "crashes": int(rows.crashed.sum()),
-        "episodes": len(rows),
-        "km": float(distance.sum()) / 1000.0,
-    }
-
-
-def figures_with_rule(policy, cfg: ExperimentConfig, episodes: int) -> dict[str, float]:
-    """:func:`validation_figures` of ``policy`` and, prefixed ``rule_``, of the rule-based ego
-    on the same episodes."""
-    mine = validation_figures(policy, cfg, episodes)
-    rule = validation_figures(baseline("rule", env_config(training_config(cfg))), cfg, episodes)
-    return {**mine, **{f"rule_{k}": v for k, v in rule.items()}}
-
-
-def split_rule(figures: dict[str, float], prefix: str = "") -> tuple[dict, dict]:
-    """The policy's and the rule-based ego's figures out of :func:`figures_with_rule`'s keys (with
-    ``prefix``, e.g. ``stock_``)."""
-    keys = ("collision_pct", "per_100km", "avg_speed")
-    return (
-        {k: figures[f"{prefix}{k}"] for k in keys},
-        {k: figures[f"{prefix}rule_{k}"] for k in keys},
-    )
-
-
-def rule_score(cfg: SweepConfig, figures: dict[str, float]) -> float:
-    """Mode ``rule``: :func:`bgap.analysis.stats.rule_objective` of both policies' figures
-    (keys of :func:`figures_with_rule`, the default policy's prefixed ``stock_``)."""
-    return rule_objective(*split_rule(figures), *split_rule(figures, "stock_"),
-                          floor=cfg.rule_floor, margin=cfg.stock_margin)  # fmt: skip
 
 
 def objective(cfg: SweepConfig, crash: float, speed: float, idle_speed: float) -> float:
@@ -238,7 +194,7 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
         if cfg.mode == "rule":  # the behaviour-rich half of the objective, while it trains
             mine, rule = split_rule(figures_with_rule(model, c, episodes))
             return policy_score("behavior_rich", mine, rule, cfg.rule_floor)
-        idle = _validation(baseline("idle"), c, episodes)[1]
+        idle = validation_rates(baseline("idle"), c, episodes)[1]
         return objective(cfg, *evaluate_model(model, c, episodes), idle)
 
     callbacks = []
@@ -257,7 +213,7 @@ def run_trial(trial: optuna.Trial, cfg: SweepConfig, space: dict, root: Path) ->
             trial.set_user_attr(key, value)
         return rule_score(cfg, figures)
     crash, speed = evaluate_model(model, tcfg, cfg.sweep_eval_episodes)
-    idle_crash, idle_speed = _validation(baseline("idle"), tcfg, cfg.sweep_eval_episodes)
+    idle_crash, idle_speed = validation_rates(baseline("idle"), tcfg, cfg.sweep_eval_episodes)
     for key, value in (
         ("collision_pct", crash),
         ("avg_speed", speed),
@@ -365,44 +321,57 @@ def _trials_table(study: optuna.Study, cfg: SweepConfig) -> pd.DataFrame:
     )
 
 
-def write_outputs(
-    study: optuna.Study, cfg: SweepConfig, chosen_label: str = "chosen"
-) -> dict[str, Path]:
-    """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
-    chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
+def _plot_trials(
+    table: pd.DataFrame,
+    cfg: SweepConfig,
+    chosen: optuna.trial.FrozenTrial,
+    chosen_label: str,
+    path: Path,
+) -> None:
+    """The trials' scatter: speed against collisions, the Pareto front in multi mode, idle
+    (and its speed floor) or the rule-based ego (and its), the chosen trial starred."""
     plt = pyplot()
-
-    out = Path(cfg.out or Path(cfg.root) / "sweeps" / study_name(cfg))
-    out.mkdir(parents=True, exist_ok=True)
-    table = _trials_table(study, cfg)
-    write_atomic(out / "trials.csv", lambda p: table.to_csv(p, index=False))
-    chosen = chosen_trial(study, cfg)
-    paths = {"trials": out / "trials.csv"}
     fig, ax = plt.subplots(figsize=(5, 3.6))
     y = "per_100km" if cfg.mode == "rule" else "collision_pct"
     ax.scatter(table.avg_speed, table[y], c="lightgray", label="trials")
     if cfg.mode == "multi":
-        front = {t.number for t in study.best_trials}
-        table["pareto"] = table.trial.isin(front)
-        write_atomic(out / "pareto.csv", lambda p: table[table.pareto].to_csv(p, index=False))
         p = table[table.pareto].sort_values("avg_speed")
         ax.plot(p.avg_speed, p.collision_pct, "o-", color="tab:red", label="Pareto front")
-        paths["pareto"] = out / "pareto.csv"
     if "idle_avg_speed" in table and table.idle_avg_speed.notna().any():
         idle_speed = float(table.idle_avg_speed.mean())
         ax.scatter(
-            [idle_speed], [float(table.idle_collision_pct.mean())], marker="s", color="tab:blue",
-            label="idle", zorder=4,
-        )  # fmt: skip
+            [idle_speed],
+            [float(table.idle_collision_pct.mean())],
+            marker="s",
+            color="tab:blue",
+            label="idle",
+            zorder=4,
+        )
         if cfg.mode == "constrained":
-            ax.axvline(cfg.speed_floor * idle_speed, ls="--", color="tab:blue", lw=0.8,
-                       label=f"{cfg.speed_floor:g} x idle speed")  # fmt: skip
+            ax.axvline(
+                cfg.speed_floor * idle_speed,
+                ls="--",
+                color="tab:blue",
+                lw=0.8,
+                label=f"{cfg.speed_floor:g} x idle speed",
+            )
     if cfg.mode == "rule" and len(table):  # the yardstick: the rule-based ego
         rule_speed = float(table.rule_avg_speed.mean())
-        ax.scatter([rule_speed], [float(table.rule_per_100km.mean())], marker="s",
-                   color="tab:green", label="rule-based ego", zorder=4)  # fmt: skip
-        ax.axvline(cfg.rule_floor * rule_speed, ls="--", color="tab:green", lw=0.8,
-                   label=f"{cfg.rule_floor:g} x its speed")  # fmt: skip
+        ax.scatter(
+            [rule_speed],
+            [float(table.rule_per_100km.mean())],
+            marker="s",
+            color="tab:green",
+            label="rule-based ego",
+            zorder=4,
+        )
+        ax.axvline(
+            cfg.rule_floor * rule_speed,
+            ls="--",
+            color="tab:green",
+            lw=0.8,
+            label=f"{cfg.rule_floor:g} x its speed",
+        )
     ax.scatter(
         [chosen.user_attrs["avg_speed"]],
         [chosen.user_attrs[y]],
@@ -421,8 +390,27 @@ def write_outputs(
     ax.set_title(f"{cfg.sweep} sweep ({cfg.mode}), {cfg.env.name}")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    write_atomic(out / "pareto.png", lambda p: fig.savefig(p, dpi=120))
+    write_atomic(path, lambda p: fig.savefig(p, dpi=120))
     plt.close(fig)
+
+
+def write_outputs(
+    study: optuna.Study, cfg: SweepConfig, chosen_label: str = "chosen"
+) -> dict[str, Path]:
+    """``trials.csv``, the trials' scatter ``pareto.png`` (the Pareto front in multi mode; the
+    chosen trial starred, ``chosen_label``), ``chosen.json`` and the preset."""
+    out = Path(cfg.out or Path(cfg.root) / "sweeps" / study_name(cfg))
+    out.mkdir(parents=True, exist_ok=True)
+    table = _trials_table(study, cfg)
+    write_atomic(out / "trials.csv", lambda p: table.to_csv(p, index=False))
+    chosen = chosen_trial(study, cfg)
+    paths = {"trials": out / "trials.csv"}
+    if cfg.mode == "multi":
+        front = {t.number for t in study.best_trials}
+        table["pareto"] = table.trial.isin(front)
+        write_atomic(out / "pareto.csv", lambda p: table[table.pareto].to_csv(p, index=False))
+        paths["pareto"] = out / "pareto.csv"
+    _plot_trials(table, cfg, chosen, chosen_label, out / "pareto.png")
     paths["plot"] = out / "pareto.png"
     if cfg.write_preset:
         paths.update({f"preset_{g}": path for g, path in write_tuned(cfg, study, chosen).items()})

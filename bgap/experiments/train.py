@@ -244,8 +244,10 @@ def _side_by_side(
     here = workers <= 1 or len(cfgs) == 1
     names = [f"{c.policy} s{c.seed}" for c in cfgs]
     steps = [c.profile.train_steps for c in cfgs]
-    kept = (f"each training keeps its last checkpoint in its run folder ({dirs[0]}, ...); "
-            "continue with the same command and resume=true")  # fmt: skip
+    kept = (
+        f"each training keeps its last checkpoint in its run folder ({dirs[0]}, ...); "
+        "continue with the same command and resume=true"
+    )
     with JobBars(names, steps, enabled=progress and not here) as bars:
 
         def done(k: int, run_dir: Path) -> None:
@@ -266,7 +268,7 @@ def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> None:
         k
         for k, (c, d) in enumerate(zip(cfgs, dirs, strict=True))
         if open_run_dir(c, d)[1] != "finished"
-    ]  # fmt: skip  (writes config and command)
+    ]  # open_run_dir writes each config and command
     if not todo:
         return
     cluster = cfgs[0].cluster
@@ -277,8 +279,11 @@ def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> None:
     else:
         jobs = [((cfgs[k],), [dirs[k]]) for k in todo]
         place, work, what = _place_training, _train_on_node, "training"
-    bar = tqdm(total=len(jobs), desc=f"{len(todo)} trainings as {len(jobs)} Ray tasks on "
-               f"{cluster.address}", unit="task")  # fmt: skip
+    bar = tqdm(
+        total=len(jobs),
+        desc=f"{len(todo)} trainings as {len(jobs)} Ray tasks on {cluster.address}",
+        unit="task",
+    )
 
     def done(k: int) -> None:
         bar.write(f"finished: {what} in {', '.join(str(d) for d in jobs[k][1])}")

@@ -32,9 +32,18 @@ from bgap.experiments.config import CHECKPOINT_SEED, ExperimentConfig
 from bgap.traffic.behaviors import BehaviorConfig
 
 NOT_LEARNT = (
-    *VOLATILE, "models", "baselines", "grid", "eval_seed", "val_seed", "out", "seeds",
-    "policies", "threads", "checkpoint",
-)  # fmt: skip
+    *VOLATILE,
+    "models",
+    "baselines",
+    "grid",
+    "eval_seed",
+    "val_seed",
+    "out",
+    "seeds",
+    "policies",
+    "threads",
+    "checkpoint",
+)
 """Settings of a training's config that do not change what it learns (run folder checks).
 (``val_seed`` only moves the periodic evaluations' episodes; ``eval_seed`` the tests'.)"""
 
@@ -111,18 +120,33 @@ def _build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
     a = cfg.agent
     network = {"net_arch": list(a.net_arch)}
     if a.extractor == "attention":
-        network |= {"features_extractor_class": EgoAttention, "features_extractor_kwargs":
-                    {"embed_dim": a.attention_dim, "heads": a.attention_heads}}  # fmt: skip
+        network |= {
+            "features_extractor_class": EgoAttention,
+            "features_extractor_kwargs": {"embed_dim": a.attention_dim, "heads": a.attention_heads},
+        }
     common = dict(
-        env=env, learning_rate=a.learning_rate, gamma=a.gamma, max_grad_norm=a.max_grad_norm,
-        tensorboard_log=str(tb_dir), seed=cfg.seed, device="cpu", verbose=0,
-    )  # fmt: skip
+        env=env,
+        learning_rate=a.learning_rate,
+        gamma=a.gamma,
+        max_grad_norm=a.max_grad_norm,
+        tensorboard_log=str(tb_dir),
+        seed=cfg.seed,
+        device="cpu",
+        verbose=0,
+    )
     if a.algo == "ppo":
         return model_class("ppo")(
-            "MlpPolicy", n_steps=a.n_steps, batch_size=a.batch_size, n_epochs=a.n_epochs,
-            gae_lambda=a.gae_lambda, clip_range=a.clip_range, ent_coef=a.ent_coef,
-            vf_coef=a.vf_coef, policy_kwargs=network, **common,
-        )  # fmt: skip
+            "MlpPolicy",
+            n_steps=a.n_steps,
+            batch_size=a.batch_size,
+            n_epochs=a.n_epochs,
+            gae_lambda=a.gae_lambda,
+            clip_range=a.clip_range,
+            ent_coef=a.ent_coef,
+            vf_coef=a.vf_coef,
+            policy_kwargs=network,
+            **common,
+        )
     per = a.replay == "per"
     check_replay_memory(a.buffer_size, math.prod(env.observation_space.shape))
     off_policy = dict(
@@ -144,9 +168,12 @@ def _build_model(cfg: ExperimentConfig, env, tb_dir: Path) -> Any:
         kwargs = {**network, "n_quantiles": a.n_quantiles, "optimizer_class": torch.optim.Adam}
         return model_class("qrdqn")("MlpPolicy", policy_kwargs=kwargs, **off_policy, **common)
     return DQN(
-        "MlpPolicy", loss=a.loss, policy_kwargs=network, **off_policy,
+        "MlpPolicy",
+        loss=a.loss,
+        policy_kwargs=network,
+        **off_policy,
         **common,
-    )  # fmt: skip
+    )
 
 
 def model_class(algo: str) -> type:

@@ -77,8 +77,7 @@ class TuneRuleConfig(ExperimentConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        check(self.situation in SITUATIONS, "situation", self.situation,
-              f"use one of {SITUATIONS}")  # fmt: skip
+        check(self.situation in SITUATIONS, "situation", self.situation, f"use one of {SITUATIONS}")
         check(self.trials >= 1, "trials", self.trials, "must be >= 1")
         check(self.episodes >= 1, "episodes", self.episodes, "must be >= 1")
         for name, seed in (("val_seed", self.val_seed), ("eval_seed", self.eval_seed)):
@@ -133,8 +132,12 @@ def search(cfg: TuneRuleConfig, progress: bool = True) -> pd.DataFrame:
         value = objective(figures, idle["avg_speed"])
         rows.append({"trial": trial.number, **asdict(params), **figures, "objective": value})
         if progress:
-            print(f"trial {trial.number + 1}/{cfg.trials}: {figures['per_100km']:.2f} per 100 km "
-                  f"at {figures['avg_speed']:.2f} m/s", file=sys.stderr, flush=True)  # fmt: skip
+            print(
+                f"trial {trial.number + 1}/{cfg.trials}: {figures['per_100km']:.2f} per 100 km "
+                f"at {figures['avg_speed']:.2f} m/s",
+                file=sys.stderr,
+                flush=True,
+            )
         return value
 
     study.optimize(trial_value, n_trials=cfg.trials)
@@ -156,10 +159,17 @@ def plot(table: pd.DataFrame, path: Path, title: str) -> None:
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 3.5))
     feasible = table.objective < 100
-    ax.plot(table.trial[feasible], table.objective[feasible], "o", ms=3, color="0.5",
-            label="trial (fast enough)")  # fmt: skip
-    ax.plot(table.trial, table.objective.where(feasible).cummin(), "-", color="C0",
-            label="best so far")  # fmt: skip
+    ax.plot(
+        table.trial[feasible],
+        table.objective[feasible],
+        "o",
+        ms=3,
+        color="0.5",
+        label="trial (fast enough)",
+    )
+    ax.plot(
+        table.trial, table.objective.where(feasible).cummin(), "-", color="C0", label="best so far"
+    )
     ax.plot([0], [table.objective.iloc[0]], "k*", ms=11, label="highway-env's defaults")
     chosen = best(table)
     ax.plot([chosen.trial], [chosen.objective], "o", mfc="none", mec="C3", ms=10, label="chosen")
@@ -181,12 +191,17 @@ def run(cfg: TuneRuleConfig) -> Path:
     plot(table, out / "search.png", f"the rule-based ego tuned: {cfg.situation}")
     chosen = best(table)
     rows = 0 if cfg.situation == "stock" else cfg.env.observed_vehicles
-    preset = TunedRule(**{f.name: float(chosen[f.name]) for f in fields(RuleParams)},
-                       situation=cfg.situation, observed_vehicles=rows)  # fmt: skip
+    preset = TunedRule(
+        **{f.name: float(chosen[f.name]) for f in fields(RuleParams)},
+        situation=cfg.situation,
+        observed_vehicles=rows,
+    )
     default = table.iloc[0]
-    note = (f"{owner}: trial {int(chosen.trial)} of {len(table)} ({chosen.per_100km:.2f} "
-            f"collisions per 100 km at {chosen.avg_speed:.2f} m/s on validation; highway-env's "
-            f"defaults: {default.per_100km:.2f} at {default.avg_speed:.2f})")  # fmt: skip
+    note = (
+        f"{owner}: trial {int(chosen.trial)} of {len(table)} ({chosen.per_100km:.2f} "
+        f"collisions per 100 km at {chosen.avg_speed:.2f} m/s on validation; highway-env's "
+        f"defaults: {default.per_100km:.2f} at {default.avg_speed:.2f})"
+    )
     path = write_preset(preset, "rule", target, note, owner)
     print(note.partition(": ")[2] + f"; wrote {path}")
     return path

@@ -67,8 +67,15 @@ def card_of(run: Path, arm: str, checkpoint: str) -> dict[str, Any]:
     validation: dict[str, Any] = {}
     if chosen.name != MODEL and (run / "best.json").exists():
         best = json.loads((run / "best.json").read_text())
-        keep = ("episodes", "steps", "collision_pct", "per_100km", "avg_speed", "lane_changes",
-                "return")  # fmt: skip
+        keep = (
+            "episodes",
+            "steps",
+            "collision_pct",
+            "per_100km",
+            "avg_speed",
+            "lane_changes",
+            "return",
+        )
         validation = {k: best[k] for k in keep if k in best}
     validated = (
         int(read_table(run / "evaluations.csv").episodes.max())
@@ -128,8 +135,10 @@ def _rule(cfg: dict[str, Any]) -> str:
         else "the highest mean return"
     )
     every = cfg["profile"]["eval_every_episodes"]
-    return (f"{how} on {n} validation episodes (seeds {first}-{first + n - 1}), validated "
-            f"every {every} training episodes")  # fmt: skip
+    return (
+        f"{how} on {n} validation episodes (seeds {first}-{first + n - 1}), validated "
+        f"every {every} training episodes"
+    )
 
 
 def export(run: Path, arm: str, out: Path, checkpoint: str = "best") -> Path:

@@ -519,8 +519,27 @@ def _park(f, b, i):
 
 
 @_jit
-def replay_frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb, rp, rframe, tracks,
-                 start, first, length, reactive):  # fmt: skip
+def replay_frame(
+    f,
+    g,
+    p,
+    b,
+    n,
+    dt,
+    lanes,
+    order,
+    rank,
+    pairs,
+    pa,
+    pb,
+    rp,
+    rframe,
+    tracks,
+    start,
+    first,
+    length,
+    reactive,
+):
     """One simulation frame of env b replaying a recording (bgap.envs.replay, the
     reference): Road.act (the ego; each replayed vehicle switches to IDM in reactive mode
     when its leader is the ego or a switched vehicle closer than its desired gap), Road.step
@@ -574,8 +593,9 @@ def replay_frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb, rp, rfram
 
 
 @nb.njit(cache=True, parallel=True, nogil=True, error_model="numpy")
-def replay_batch(f, g, p, actions, speeds, frames, dt, lanes, rp, rframe, tracks, start, first,
-                 length, reactive):  # fmt: skip
+def replay_batch(
+    f, g, p, actions, speeds, frames, dt, lanes, rp, rframe, tracks, start, first, length, reactive
+):
     """:func:`step_batch` for replayed traffic (:func:`replay_frame`)."""
     n_env, n = f.shape[0], f.shape[1]
     for b in nb.prange(n_env):
@@ -589,8 +609,27 @@ def replay_batch(f, g, p, actions, speeds, frames, dt, lanes, rp, rframe, tracks
         for k in range(frames):
             if k == 0:
                 ego_act(f, g, b, actions[b], speeds, lanes)
-            replay_frame(f, g, p, b, n, dt, lanes, order, rank, pairs, pa, pb, rp, rframe,
-                         tracks, start, first, length, reactive)  # fmt: skip
+            replay_frame(
+                f,
+                g,
+                p,
+                b,
+                n,
+                dt,
+                lanes,
+                order,
+                rank,
+                pairs,
+                pa,
+                pb,
+                rp,
+                rframe,
+                tracks,
+                start,
+                first,
+                length,
+                reactive,
+            )
 
 
 # Random draws: numpy's Generator algorithms on a PCG64 stream reached through its ctypes

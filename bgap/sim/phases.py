@@ -120,8 +120,10 @@ def step_in_phases(venv: Any, actions: np.ndarray, clock: dict[str, float] | Non
     actions = np.asarray(actions, dtype=np.int64).reshape(n_env)
     before = g[:, 0, TARGET_LANE].copy()
     for k in range(venv.frames_per_step):
-        timed("decisions (MOBIL)", lambda k=k: decide_all(
-            f, g, p, actions, venv.speeds, venv.lanes, k == 0, order, rank))  # fmt: skip
+        timed(
+            "decisions (MOBIL)",
+            lambda k=k: decide_all(f, g, p, actions, venv.speeds, venv.lanes, k == 0, order, rank),
+        )
         timed("controllers", lambda: control_all(f, g))
         timed("IDM", lambda: idm_all(f, g, p, order, rank))
         timed("kinematics", lambda: move_all(f, g, p, venv.dt, venv.lanes))

@@ -26,6 +26,21 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+RECORD_FIELDS = ("x", "y", "vx", "vy", "speed", "lane", "crashed")
+"""The fields of a recorded frame, in the simulators' array layout (last axis)."""
+
+
+def initial_states(f: np.ndarray, g: np.ndarray, num_envs: int, n: int) -> np.ndarray:
+    """The current frame of every env of the vector backend (its float and int states ``f``,
+    ``g`` of ``n`` background vehicles) in the recording layout: (B, 1, n + 1, 7)."""
+    from bgap.sim import core  # the kernels only where frames are recorded: tables load without
+
+    out = np.zeros((num_envs, 1, n + 1, len(RECORD_FIELDS)))
+    for b in range(num_envs):
+        core.record(f, g, b, n + 1, out, 0)
+    return out
+
+
 COLUMNS = [
     "episode",
     "frame",

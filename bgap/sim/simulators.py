@@ -27,7 +27,8 @@ from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
 from bgap.common.errors import ConfigError, check
 from bgap.common.vocab import BACKENDS, LABEL_CODES
-from bgap.sim.vector import RECORD_FIELDS, VectorHighway
+from bgap.sim.recorder import RECORD_FIELDS
+from bgap.sim.vector import VectorHighway
 
 __all__ = ["RECORD_FIELDS", "make_vec_highway", "make_vector_env"]
 

@@ -47,6 +47,7 @@ from bgap.sim.core import (
     Y,
 )
 from bgap.sim.highway_params import IDM_DEFAULTS, PARAM_COLUMNS, check_supported, column_value
+from bgap.sim.recorder import RECORD_FIELDS, initial_states
 from bgap.traffic.behaviors import (
     DRIVER_ATTRIBUTES,
     BehaviorVehicle,
@@ -62,8 +63,6 @@ from bgap.traffic.scenario import REWARD_TERMS, contact_dx, full_config
 # compiled scene draw calls them on each env's stream (core.spawn).
 _PCG64_KEPT = np.random.PCG64()  # alive, though only its functions are used
 _PCG64 = _PCG64_KEPT.ctypes
-
-RECORD_FIELDS = ("x", "y", "vx", "vy", "speed", "lane", "crashed")
 
 
 @dataclass
@@ -110,8 +109,10 @@ class VectorHighway(gym.vector.VectorEnv):
         self.replay = None
         if self.traffic.get("source") == "replay":  # the road takes the table's lanes
             if record:
-                raise ConfigError("recording replayed traffic is not supported; replay it "
-                                  "without recording (the table is the recording)")  # fmt: skip
+                raise ConfigError(
+                    "recording replayed traffic is not supported; replay it "
+                    "without recording (the table is the recording)"
+                )
             self.replay = load_replay(
                 self.traffic["table"], cfg["simulation_frequency"], self.traffic["min_duration"]
             )
@@ -236,9 +237,10 @@ class VectorHighway(gym.vector.VectorEnv):
         end = w.start + self._window_steps[b] * self.frames_per_step
         scene = w.scene
         others = [
-            v for v in range(len(scene.ids))
+            v
+            for v in range(len(scene.ids))
             if v != w.ego and scene.span(v)[1] >= w.start and scene.span(v)[0] <= end
-        ]  # fmt: skip
+        ]
         others.sort(key=lambda v: (max(scene.span(v)[0], w.start), v))  # road order
         _, start, first, _ = (None, *self._track_index)
         for slot, v in enumerate(others, start=1):
@@ -258,8 +260,9 @@ class VectorHighway(gym.vector.VectorEnv):
             rp[b, slot, core.R_TRACK] = track
             if first[track] <= w.start:
                 rp[b, slot, core.R_STATE] = core.R_LOG
-                core._replayed_state(f, g, b, slot, self._tracks,
-                                     start[track] + w.start - first[track], self.lanes)  # fmt: skip
+                core._replayed_state(
+                    f, g, b, slot, self._tracks, start[track] + w.start - first[track], self.lanes
+                )
                 g[b, slot, TARGET_LANE] = g[b, slot, LANE]
                 if not rp[b, slot, core.R_OWN_V0]:
                     f[b, slot, TARGET_SPEED] = f[b, slot, SPEED]
@@ -360,7 +363,7 @@ class VectorHighway(gym.vector.VectorEnv):
         zero = np.zeros(self.num_envs, dtype=bool)
         info = self._info(zero)
         if self.record:
-            info["reset_frames"] = initial_states(self)
+            info["reset_frames"] = initial_states(self.f, self.g, self.num_envs, self.n)
             info["labels"] = self.g[:, :, LABEL].copy()
         return obs.copy(), info
 
@@ -377,10 +380,22 @@ class VectorHighway(gym.vector.VectorEnv):
         if self.replay is not None:
             start, first, length = self._track_index
             core.replay_batch(
-                self.f, self.g, self.p, actions, self.speeds, self.frames_per_step, self.dt,
-                self.lanes, self._rp, self._rframe, self._tracks, start, first, length,
+                self.f,
+                self.g,
+                self.p,
+                actions,
+                self.speeds,
+                self.frames_per_step,
+                self.dt,
+                self.lanes,
+                self._rp,
+                self._rframe,
+                self._tracks,
+                start,
+                first,
+                length,
                 self.traffic["mode"] == "reactive",
-            )  # fmt: skip
+            )
         else:
             core.step_batch(
                 self.f,
@@ -414,7 +429,7 @@ class VectorHighway(gym.vector.VectorEnv):
             self._spawn(np.flatnonzero(done))
             obs = self._observe()
             if self.record:
-                info["reset_frames"] = initial_states(self)
+                info["reset_frames"] = initial_states(self.f, self.g, self.num_envs, self.n)
                 info["labels"] = self.g[:, :, LABEL].copy()
                 info["_reset_frames"] = done.copy()
         return obs.copy(), rewards, terminated, truncated, info
@@ -480,11 +495,3 @@ class VectorHighway(gym.vector.VectorEnv):
             "aggressive_fraction_observed": seen_aggressive / np.maximum(seen, 1),
             "observed_count": seen,
         }
-
-
-def initial_states(venv: VectorHighway) -> np.ndarray:
-    """The current frame of every env in the recording layout: (B, 1, n + 1, 7)."""
-    out = np.zeros((venv.num_envs, 1, venv.n + 1, len(RECORD_FIELDS)))
-    for b in range(venv.num_envs):
-        core.record(venv.f, venv.g, b, venv.n + 1, out, 0)
-    return out

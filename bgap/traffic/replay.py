@@ -181,8 +181,12 @@ class Replay:
         or conservative (each track once; the ego of a recording left out): the replay's
         ``mix``, comparable with the simulated mixes. None when the table has no such
         labels."""
-        names = [LABEL_NAMES.get(int(x), x) if str(x).isdigit() else x
-                 for scene in self.scenes for x in scene.labels if x is not None]  # fmt: skip
+        names = [
+            LABEL_NAMES.get(int(x), x) if str(x).isdigit() else x
+            for scene in self.scenes
+            for x in scene.labels
+            if x is not None
+        ]
         classed = [x for x in names if x in (AGGRESSIVE, CONSERVATIVE)]
         return classed.count(AGGRESSIVE) / len(classed) if classed else None
 
@@ -341,5 +345,10 @@ def load_replay(table: str, simulation_frequency: float, min_duration: float) ->
     if not path.exists():
         raise TrajectoryError(f"traffic.table={table}: no such file")
     stat = path.stat()
-    return _cached(str(path.resolve()), stat.st_mtime_ns, stat.st_size,
-                   float(simulation_frequency), float(min_duration))  # fmt: skip
+    return _cached(
+        str(path.resolve()),
+        stat.st_mtime_ns,
+        stat.st_size,
+        float(simulation_frequency),
+        float(min_duration),
+    )

@@ -362,11 +362,18 @@ def check_config(config: dict[str, Any]) -> None:
     observation = config.get("observation") or {}
     if observation.get("type") == "Kinematics":
         rows, order = observation.get("vehicles_count", 5), observation.get("order", "sorted")
-        check(_whole(rows) and rows >= 1,
-              "observation.vehicles_count", rows, "must be an integer >= 1 (the ego's row, "
-              "then the vehicles it observes)")  # fmt: skip
-        check(order in ("sorted", "shuffled"), "observation.order", order,
-              "use 'sorted' (nearest first) or 'shuffled'")  # fmt: skip
+        check(
+            _whole(rows) and rows >= 1,
+            "observation.vehicles_count",
+            rows,
+            "must be an integer >= 1 (the ego's row, then the vehicles it observes)",
+        )
+        check(
+            order in ("sorted", "shuffled"),
+            "observation.order",
+            order,
+            "use 'sorted' (nearest first) or 'shuffled'",
+        )
     lanes = config.get("lanes_count", 1)
     check(_whole(lanes) and lanes >= 1, "lanes_count", lanes, "must be an integer >= 1")
     duration = config.get("duration", 1.0)

@@ -91,16 +91,22 @@ def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict, pd.DataF
             raise ConfigError(f"the {part} episodes need both aggressive and conservative cars")
     x, y = tune.aggressiveness.to_numpy(), tune.positive.to_numpy()
     boundary = youden_threshold(x, y)
-    validation = balanced_accuracy(check.aggressiveness.to_numpy(), check.positive.to_numpy(),
-                                   boundary)  # fmt: skip
-    result = ClassBoundary(name=cmetric, cmetric=cmetric, boundary=boundary,
-                           balanced_accuracy=validation,
-                           tables=[str(t) for t in tables])  # fmt: skip
+    validation = balanced_accuracy(
+        check.aggressiveness.to_numpy(), check.positive.to_numpy(), boundary
+    )
+    result = ClassBoundary(
+        name=cmetric,
+        cmetric=cmetric,
+        boundary=boundary,
+        balanced_accuracy=validation,
+        tables=[str(t) for t in tables],
+    )
     report = asdict(result) | {
         "tuning_balanced_accuracy": balanced_accuracy(x, y, boundary),
-        "tuning_vehicles": len(tune), "validation_vehicles": len(check),
+        "tuning_vehicles": len(tune),
+        "validation_vehicles": len(check),
         "aggressive_share_tuning": float(y.mean()),
-    }  # fmt: skip
+    }
     return result, report, scored
 
 

@@ -36,8 +36,14 @@ def _plot(scored: pd.DataFrame, boundary: float, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5.5, 3.4))
     bins = np.linspace(scored.aggressiveness.min(), scored.aggressiveness.max(), 40)
     for label, colour in ((CONSERVATIVE, "tab:blue"), (AGGRESSIVE, "tab:red")):
-        ax.hist(scored[scored.label == label].aggressiveness, bins, alpha=0.5, color=colour,
-                label=label, density=True)  # fmt: skip
+        ax.hist(
+            scored[scored.label == label].aggressiveness,
+            bins,
+            alpha=0.5,
+            color=colour,
+            label=label,
+            density=True,
+        )
     ax.axvline(boundary, color="k", ls="--", label=f"boundary {boundary:.3f}")
     ax.set_xlabel("CMetric aggressiveness")
     ax.set_ylabel("density of vehicles")
@@ -55,17 +61,22 @@ def fix_boundary(cfg: BoundaryConfig) -> Path:
     preset = Path(cfg.preset or out / f"{cfg.cmetric}.yaml")
     earlier = [str(p) for p in (out / "boundary.json", preset) if p.exists()]
     if earlier:
-        raise ConfigError(f"{', '.join(earlier)} exist(s) from an earlier run; give another "
-                          "out= (and preset=), or remove them")  # fmt: skip
+        raise ConfigError(
+            f"{', '.join(earlier)} exist(s) from an earlier run; give another "
+            "out= (and preset=), or remove them"
+        )
     result, report, scored = fit(_tables(cfg.tables), cfg.cmetric)
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "boundary.json", json.dumps(report, indent=1))
-    write_atomic(out / "command.txt", " ".join(["python -m bgap.cmetric.boundary",
-                                                 *sys.argv[1:]]) + "\n")  # fmt: skip
+    write_atomic(
+        out / "command.txt", " ".join(["python -m bgap.cmetric.boundary", *sys.argv[1:]]) + "\n"
+    )
     _plot(scored, result.boundary, out / "scores.png")
-    note = (f"Class boundary of cmetric={cfg.cmetric}, fixed by python -m "
-            f"bgap.cmetric.boundary on {len(result.tables)} labelled tables (Youden's J on "
-            f"their even episodes); report: {out / 'boundary.json'}")  # fmt: skip
+    note = (
+        f"Class boundary of cmetric={cfg.cmetric}, fixed by python -m "
+        f"bgap.cmetric.boundary on {len(result.tables)} labelled tables (Youden's J on "
+        f"their even episodes); report: {out / 'boundary.json'}"
+    )
     preset.parent.mkdir(parents=True, exist_ok=True)
     write_atomic(preset, f"# {note}\n{OmegaConf.to_yaml(OmegaConf.structured(result))}")
     tuned = report["tuning_balanced_accuracy"]
