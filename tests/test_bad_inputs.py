@@ -198,6 +198,8 @@ CASES = [
     ("cmetric.boundary", ["tables=[{tmp}/good.csv]", "out={tmp}/done"], r"json.* from an earlier"),
     ("cmetric.boundary", ["{tmp}/nothing"], r"nothing: no such file"),
     ("cmetric.boundary", ["tables=[]"], r"tables=\[\] is invalid: give labelled tables"),
+    ("cmetric.boundary", ["{tmp}/nothing", "--cmetric", "paper"], r"nothing: no such file"),
+    ("cmetric.boundary", ["tables=[{tmp}/nothing]", "cmetric_preset=paper"], r"no such file"),
     ("figures", ["evaluations=[{tmp}/evaluation]"], r"episodes.parquet cannot be read as Parquet"),
     # --- select: no run folders, a bad group size, an earlier selection
     ("select", ["{tmp}/nothing", "--out", "{tmp}/kept"], r"no run folders .* in .*nothing"),

@@ -41,12 +41,13 @@ class BoundaryConfig:
     tables: list[str] = field(default_factory=list)
     """Labelled trajectory tables, or folders holding ``trajectories.parquet`` files (the
     pipeline: its ``cmetric_data``)."""
-    cmetric: str = "tuned"
-    """The CMetric preset the tables are scored with."""
+    cmetric_preset: str = "tuned"
+    """The CMetric preset the tables are scored with (``bgap/conf/cmetric``; a field of its
+    own name, since ``cmetric=`` picks that config group in the other commands)."""
     out: str = "outputs/cmetric_boundary"
     """The report folder."""
     preset: Optional[str] = None
-    """Where the boundary preset goes; default ``<out>/<cmetric>.yaml``."""
+    """Where the boundary preset goes; default ``<out>/<cmetric_preset>.yaml``."""
 
     def __post_init__(self) -> None:
         check(

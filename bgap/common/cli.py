@@ -182,19 +182,22 @@ def older_command_line(
     listed: bool = False,
     lists: tuple[str, ...] = (),
     flags: tuple[str, ...] = (),
+    renamed: dict[str, str] | None = None,
 ) -> None:
     """Rewrite ``sys.argv`` of a command's older ``--option`` form (argparse) into Hydra's
     ``key=value`` overrides, so scripts written for it keep working: leading arguments
     without ``=`` are ``positional`` (a list when ``listed``), ``--name VALUE`` is
     ``name=VALUE`` (for a ``lists`` key, ``name=[...]`` of every comma-separated value after
-    it), and ``--name`` of ``flags`` is ``name=true``; ``-`` in a name is ``_``. Hydra's own
-    options (:data:`HYDRA_OPTIONS`) pass through."""
+    it), and ``--name`` of ``flags`` is ``name=true``; ``-`` in a name is ``_``, and a name
+    in ``renamed`` takes its new name. Hydra's own options (:data:`HYDRA_OPTIONS`) pass
+    through."""
     args: list[str] = []
     bare: list[str] = []
     key = None
     for arg in sys.argv[1:]:
         value = "=" not in arg and (not arg.startswith("-") or _is_number(arg))
         name = arg[2:].replace("-", "_") if arg.startswith("--") and "=" not in arg else None
+        name = (renamed or {}).get(name, name) if name else name
         if arg in HYDRA_OPTIONS or (name is None and not value) or (name and arg[2:3] == "-"):
             args.append(arg)
             key = None

@@ -1,6 +1,6 @@
 """A class boundary on CMetric's aggressiveness, fixed once on bgap's own labelled tables.
 
-    python -m bgap.cmetric.boundary tables=[outputs/pipeline/cmetric_data] cmetric=tuned \
+    python -m bgap.cmetric.boundary tables=[outputs/pipeline/cmetric_data] cmetric_preset=tuned \
         out=results/cmetric/boundary preset=bgap/conf/cmetric/boundary/tuned.yaml
 
 The boundary is the aggressiveness above which a vehicle reads aggressive: the threshold

@@ -1,4 +1,4 @@
-"""``python -m bgap.cmetric.boundary tables=[...] cmetric=tuned out=DIR [preset=PATH]``: fix
+"""``python -m bgap.cmetric.boundary tables=[...] cmetric_preset=tuned out=DIR [preset=PATH]``: fix
 the class boundary on labelled tables (:mod:`bgap.cmetric.boundary`) and write its report
 and preset."""
 
@@ -58,14 +58,14 @@ def fix_boundary(cfg: BoundaryConfig) -> Path:
     an earlier run's files is refused (the pipeline's stage starts empty: DVC removes its
     outputs)."""
     out = Path(cfg.out)
-    preset = Path(cfg.preset or out / f"{cfg.cmetric}.yaml")
+    preset = Path(cfg.preset or out / f"{cfg.cmetric_preset}.yaml")
     earlier = [str(p) for p in (out / "boundary.json", preset) if p.exists()]
     if earlier:
         raise ConfigError(
             f"{', '.join(earlier)} exist(s) from an earlier run; give another "
             "out= (and preset=), or remove them"
         )
-    result, report, scored = fit(_tables(cfg.tables), cfg.cmetric)
+    result, report, scored = fit(_tables(cfg.tables), cfg.cmetric_preset)
     out.mkdir(parents=True, exist_ok=True)
     write_atomic(out / "boundary.json", json.dumps(report, indent=1))
     write_atomic(
@@ -73,7 +73,7 @@ def fix_boundary(cfg: BoundaryConfig) -> Path:
     )
     _plot(scored, result.boundary, out / "scores.png")
     note = (
-        f"Class boundary of cmetric={cfg.cmetric}, fixed by python -m "
+        f"Class boundary of cmetric={cfg.cmetric_preset}, fixed by python -m "
         f"bgap.cmetric.boundary on {len(result.tables)} labelled tables (Youden's J on "
         f"their even episodes); report: {out / 'boundary.json'}"
     )
@@ -93,9 +93,9 @@ def _hydra_main(dcfg: DictConfig) -> None:
 
 
 def main() -> None:
-    """The Hydra app. The older command line still reads: leading tables, ``--cmetric``,
-    ``--out`` and ``--preset``."""
-    older_command_line("tables", listed=True)
+    """The Hydra app. The older command line still reads: leading tables, ``--cmetric``
+    (``cmetric_preset=``), ``--out`` and ``--preset``."""
+    older_command_line("tables", listed=True, renamed={"cmetric": "cmetric_preset"})
     _hydra_main()
 
 
