@@ -553,21 +553,6 @@ def test_every_claims_interval_agrees_with_its_p_value():
         assert (r.lo_holm > 0 or r.hi_holm < 0) == (r.p_holm < 0.05), r
 
 
-def _command(command: str, args: list[str], capsys, monkeypatch) -> tuple[int, str]:
-    """``python -m <command> ARGS`` in this process: its exit status and what it printed."""
-    import runpy
-    import sys
-
-    monkeypatch.setattr(sys, "argv", [command, *args])
-    try:
-        runpy.run_module(command, run_name="__main__", alter_sys=True)
-        status = 0
-    except SystemExit as done:
-        status = done.code if isinstance(done.code, int) else int(done.code is not None)
-    out = capsys.readouterr()
-    return status, out.out + out.err
-
-
 def test_figures_refuses_an_arm_that_replayed_another_table(tmp_path, capsys, monkeypatch):
     """``bgap.evaluate`` records each cell's traffic inputs (content hashes); two evaluations
     of the same table are compared cell by cell and pass, and an arm whose table has other
@@ -575,6 +560,7 @@ def test_figures_refuses_an_arm_that_replayed_another_table(tmp_path, capsys, mo
     the input, before anything is written."""
     from bgap.analysis.inputs import check_inputs
     from bgap.common.errors import ConfigError
+    from tests.test_help import _run as _command
     from tests.test_replay import _follower_table
 
     table = tmp_path / "t.parquet"
