@@ -5,18 +5,49 @@
 #   setsid nohup tools/stages.sh LOG STAGE [STAGE ...] &
 #
 # Stops at the first stage that fails. The log's lines "done STAGE SECONDS" are what a
-# session commits (the stage's lock and its git-kept outputs); a stage cut by the machine's
-# end is rerun from its start (a training's own resume: dvc.yaml's comment on `train`).
-# Pause it for a benchmark or a test suite with `kill -STOP -- -PGID` and `kill -CONT`.
+# session commits (the stage's lock and its git-kept outputs). Rerun the same line after the
+# session's end cut it: stages already done are skipped (DVC finds them up to date), and a
+# training cut midway resumes from its last checkpoint (its command with resume=true, then
+# `dvc commit`: dvc.yaml's comment on `train`), so at most `profile.checkpoint_every` steps
+# per member are played again. Pause it for a benchmark or a test suite with
+# `kill -STOP -- -PGID` and `kill -CONT`.
 set -u
 log=$1
 shift
+
+# Prints the stage's command when it is a training whose outputs hold a checkpoint, and
+# succeeds when the stage is stale too: a training the session's end cut. DVC's own API reads
+# dvc.yaml, so foreach stages expand as `dvc repro` would expand them.
+resumable() {
+    python - "$1" <<'EOF'
+import sys
+from pathlib import Path
+
+from dvc.repo import Repo
+
+(stage,) = Repo().stage.collect(sys.argv[1])
+saved = any(Path(o.fs_path).rglob("state.pkl") for o in stage.outs if Path(o.fs_path).is_dir())
+if saved and "bgap.train" in stage.cmd:
+    print(stage.cmd)
+EOF
+    [ "$(dvc status --json "$1")" != "{}" ]  # stale: not recorded as done
+}
+
 for stage in "$@"; do
     start=$(date +%s)
-    echo "start $stage $(date -u +%FT%TZ)" >>"$log"
-    if ! dvc repro --single-item "$stage" >>"$log.out" 2>&1; then
-        echo "failed $stage $(( $(date +%s) - start ))" >>"$log"
-        exit 1
+    if cmd=$(resumable "$stage") && [ -n "$cmd" ]; then
+        echo "resume $stage $(date -u +%FT%TZ)" >>"$log"
+        # shellcheck disable=SC2086  # the stage's command, word-split as DVC's shell would
+        if ! { eval "$cmd resume=true" && dvc commit --force "$stage"; } >>"$log.out" 2>&1; then
+            echo "failed $stage $(( $(date +%s) - start ))" >>"$log"
+            exit 1
+        fi
+    else
+        echo "start $stage $(date -u +%FT%TZ)" >>"$log"
+        if ! dvc repro --single-item "$stage" >>"$log.out" 2>&1; then
+            echo "failed $stage $(( $(date +%s) - start ))" >>"$log"
+            exit 1
+        fi
     fi
     echo "done $stage $(( $(date +%s) - start ))" >>"$log"
 done
