@@ -7,6 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from bgap.analysis.aggregates import aggregates
+from bgap.analysis.aggregates import markdown as aggregate_markdown
 from bgap.analysis.coverage import Design, yardstick_coverage, yardstick_table
 from bgap.analysis.stats import RULE_FLOOR
 from bgap.analysis.yardsticks import MIN_SEEDS, markdown, versus, versus_yardsticks
@@ -95,3 +97,24 @@ def test_the_yardstick_interval_covers_at_5_and_10_seeds():
     wide = [r for r in rows if r["width"] > 2.05]
     assert not wide, wide
     assert np.isfinite([r["coverage"] for r in rows]).all()
+
+
+def test_aggregate_views_are_the_hand_computed_iqm_and_probability_of_improvement():
+    """Seed s crashes in s episodes of mix 0 and never in mix 1; the rule once in mix 0.
+    The runs (seed x cell) are r_s = 100 s / (40 - s / 2) per 100 km in mix 0 and 0 in mix 1:
+    sorted 0,0,0,0,0,r1,r2,r3, so the IQM is the mean of the middle four, r1 / 4. In mix 0
+    seed 0 has fewer collisions than the rule (1), seed 1 as many (1/2), seeds 2 and 3 more;
+    in mix 1 all tie: (1.5 / 4 + 1 / 2) / 2."""
+    crashes = {(0.0, s): list(range(s)) for s in range(4)}
+    df = pd.concat([_episodes("behavior_rich", list(range(4)), crashes, 26.0),
+                    _episodes("rule", [-1], {(0.0, -1): [5]}, 26.0, arm="")])  # fmt: skip
+    table, runs = aggregates(df)
+    (row,) = table.itertuples()
+    r = [100 * s / (40 - s / 2) for s in range(4)]
+    assert (row.n_seeds, row.n_cells) == (4, 2)
+    assert row.iqm_per_100km == pytest.approx(r[1] / 4)
+    assert row.mean_per_100km == pytest.approx(sum(r) / 8)
+    assert row.p_improve_rule == pytest.approx((1.5 / 4 + 0.5) / 2)
+    assert "p_improve_idm" not in table  # no idm episodes: no column
+    np.testing.assert_allclose(runs["dense"]["x/behavior_rich"][:, 0], r)
+    assert "| x behavior-rich | 4 x 2 | " in aggregate_markdown(table)

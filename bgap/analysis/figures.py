@@ -20,9 +20,12 @@ pipeline's stage: ``results/``):
 - ``own_traffic.csv``: whether each trained policy beats idle in its own training traffic;
 - ``yardsticks.csv``: each learned policy family against each hand-built driver, paired on
   the same episodes (:mod:`bgap.analysis.yardsticks`);
+- ``aggregates.csv``: rliable's views of every training seed in every cell against the
+  hand-built drivers (:mod:`bgap.analysis.aggregates`);
 - ``table2.md``: Table II with every policy of ours in the same cell;
 - ``figures/``: ``fig4.png`` (and ``fig4_<arm>.png`` per other arm), ``fig6.png``,
-  ``paper_vs_ours.png`` (the paper's bars beside ours), ``ablation.png`` (training mix);
+  ``paper_vs_ours.png`` (the paper's bars beside ours), ``ablation.png`` (training mix),
+  ``profiles.png`` (performance profiles);
 - ``README.md`` and ``metrics.json``.
 
 Statistics (:mod:`bgap.analysis.intervals`): training seeds are the independent units, and
@@ -52,6 +55,7 @@ WRITTEN = (
     "claims.csv",
     "own_traffic.csv",
     "yardsticks.csv",
+    "aggregates.csv",
     "table2.md",
     "metrics.json",
     "figures",

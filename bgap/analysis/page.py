@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from bgap.analysis.aggregates import markdown as aggregate_markdown
 from bgap.analysis.claims import MIN_SEEDS, ablation_table
 from bgap.analysis.crashes import EARLY_STEPS, fault_markdown
 from bgap.analysis.episodes import ALPHA, duplicates, is_replay, n_of
@@ -33,7 +34,9 @@ with their format: ``{episodes:,}``)."""
 NO_CLAIMS = "(no claims: one family only)\n"
 
 
-def readme(df, stats, table, own, sources, models, paths, yard, left_out=(), versus=None) -> str:
+def readme(
+    df, stats, table, own, sources, models, paths, yard, left_out=(), versus=None, summary=None
+) -> str:
     """The page: :data:`TEMPLATE` with the study's numbers and tables filled in."""
     fields = {
         **_source(df, sources, paths),
@@ -47,6 +50,7 @@ def readme(df, stats, table, own, sources, models, paths, yard, left_out=(), ver
             else "(no claims: one family only)\n"
         ),
         "versus": yardstick_versus(versus) if versus is not None else "(not computed)\n",
+        "aggregates": aggregate_markdown(summary) if summary is not None else "(not computed)\n",
         "faults": fault_markdown(df),
         "replay": replay_markdown(stats),
         "families": _families(table),

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from bgap.analysis.aggregates import aggregates, profiles_figure
 from bgap.analysis.claims import claims, own_traffic
 from bgap.analysis.episodes import (
     METRICS,
@@ -434,7 +435,14 @@ def make_figures(
     versus = versus_yardsticks(df)
     paths["yardsticks"] = out / "yardsticks.csv"
     write_atomic(paths["yardsticks"], lambda p: versus.to_csv(p, index=False))
+    summary, runs = aggregates(df)
+    paths["aggregates"] = out / "aggregates.csv"
+    write_atomic(paths["aggregates"], lambda p: summary.to_csv(p, index=False))
+    if profiles_figure(runs, out / "figures" / "profiles.png"):
+        paths["profiles"] = out / "figures" / "profiles.png"
     paths["readme"] = out / "README.md"
-    page = readme(df, stats, table, own, [*sources, *stock], models, paths, yard, left_out, versus)
+    page = readme(
+        df, stats, table, own, [*sources, *stock], models, paths, yard, left_out, versus, summary
+    )
     write_atomic(paths["readme"], page)
     return paths
