@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -51,3 +52,37 @@ def test_the_commands_that_became_tools_say_where_they_went(args, says):
     done = _tool(*args)
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert says in done.stderr
+
+
+def _early_crashes():
+    spec = importlib.util.spec_from_file_location("early_crashes", ROOT / "tools/early_crashes.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_early_crash_rates_are_the_hand_computed_ones():
+    """Four episodes of 60 steps at most: one crashes at step 2 (early), one at step 9
+    (later); the later windows are (0 + 57 + 57 + 6) / 3 = 40, so the early share 1/4 is 10
+    times the later rate per window, 1/40."""
+    tool = _early_crashes()
+    df = pd.DataFrame({"policy": "rule", "density": "dense", "steps": [2, 60, 60, 9],
+                       "crashed": [True, False, False, True]})  # fmt: skip
+    (row,) = tool.rates(df).to_dict(orient="records")
+    assert row["early share %"] == pytest.approx(25.0)
+    assert row["later rate per 3-step window %"] == pytest.approx(2.5)
+    assert row["ratio"] == pytest.approx(10.0)
+
+
+@pytest.mark.slow
+def test_every_early_crash_of_the_committed_baselines_replays_and_was_avoidable():
+    """The simulator, from the evaluation's stored settings and seeds, crashes each
+    hand-built ego at the recorded step of every early crash, and on each of those episodes
+    some meta-action held through the early steps survives them: the starts were feasible."""
+    folder = ROOT / "results/evaluation/baselines/paper"
+    tool = _early_crashes()
+    df = pd.read_parquet(folder / "episodes.parquet")
+    checked = tool.check_episodes(df[df.policy.isin([*tool.EGOS, "idm"])], folder)
+    assert len(checked) > 50
+    assert checked.replayed.all()
+    assert (checked["actions that survive"] > 0).all()
