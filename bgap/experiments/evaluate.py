@@ -248,8 +248,30 @@ def evaluate(
     highway-env).
     """
     cells = list(cells or grid_cells(cfg))
+    seeds, configs = plan(cfg, cells, episodes)
+    return play_plan(cfg, policies, cells, seeds, configs, progress, chunk)
+
+
+def plan(
+    cfg: ExperimentConfig, cells: list[Cell], episodes: int | None = None
+) -> tuple[list[int], list[dict[str, Any]]]:
+    """What an evaluation plays: the episode seeds (``episodes``, default the profile's, from
+    ``cfg.eval_seed``) and each cell's environment config, in ``cells``' order."""
     episodes = episodes or cfg.profile.eval_episodes
-    seeds = [cfg.eval_seed + k for k in range(episodes)]
+    return [cfg.eval_seed + k for k in range(episodes)], [cell_env_config(cfg, c) for c in cells]
+
+
+def play_plan(
+    cfg: ExperimentConfig,
+    policies: dict[str, str],
+    cells: list[Cell],
+    seeds: list[int],
+    configs: list[dict[str, Any]],
+    progress: bool = True,
+    chunk: int = 5,
+) -> pd.DataFrame:
+    """:func:`evaluate` on the seeds and cell configs :func:`plan` gave."""
+    episodes = len(seeds)
     workers = cfg.workers
     if cfg.backend == "vector":  # one batch per cell and policy
         chunk = episodes
@@ -258,7 +280,6 @@ def evaluate(
             workers = 1  # in-process: any policy object; no process start for a small run
     _MODELS.clear()  # models loaded by an earlier evaluation here: their files may be new
     needed = _check_densities(policies, cells, cfg)
-    configs = [cell_env_config(cfg, cell) for cell in cells]
     for spec in policies.values():  # a zoo policy plays only under the settings it trained for
         if isinstance(spec, (str, Path)) and zoo.card(Path(spec)):
             for config in configs:
@@ -334,10 +355,9 @@ def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
     with exclusive(out):  # a second evaluation into the same folder is refused
         save_run_metadata(out, dcfg, upgrade=upgrade)
         cells = grid_cells(cfg)
-        episodes = compact(evaluate(cfg, specs, cells))  # what is stored is what is summarised
+        seeds, configs = plan(cfg, cells)
+        episodes = compact(play_plan(cfg, specs, cells, seeds, configs))  # stored is summarised
         summary = summarize(episodes)
-        seeds = [cfg.eval_seed + k for k in range(cfg.profile.eval_episodes)]
-        configs = [cell_env_config(cfg, cell) for cell in cells]
         inputs = traffic_inputs(
             [c.key for c in cells], configs, [c.table for c in cells], seeds, asdict(cfg.behavior)
         )
