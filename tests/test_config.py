@@ -93,3 +93,22 @@ def test_seed_blocks_at_the_gap(val_seed, refused):
     says = f"val_seed={val_seed} is invalid: must be at least 10000 away from eval_seed=100000"
     with pytest.raises(ConfigError, match=says):
         validate(cfg)
+
+
+def test_a_config_reads_no_file_until_its_command_loads_it(tmp_path):
+    """A replayed table no episode can come from (a CSV without trajectory columns): building
+    the config (a worker's, a trial's) reads nothing and passes; the command's load refuses
+    it in one line, for the environment's table as for every grid table."""
+    from bgap.common.config import load
+    from bgap.common.errors import TrajectoryError
+
+    table = tmp_path / "table.csv"
+    table.write_text("a,b\n1,2\n")
+    for overrides in (
+        ["traffic=replay", f"traffic.table={table}"],
+        [f"grid.replays=[{table}]"],
+    ):
+        cfg = compose("evaluate", ["baselines=[idle]", *overrides])
+        validate(cfg)
+        with pytest.raises(TrajectoryError, match=r"table\.csv"):
+            load(cfg)

@@ -71,6 +71,7 @@ from bgap.calibration.kinematics import (
 from bgap.cmetric.io import TrajectoryError, load_trajectories
 from bgap.cmetric.score import score_trajectories
 from bgap.common.presets import write_preset
+from bgap.common.runs import file_digest
 from bgap.common.studies import open_storage, resumable_study, run_until
 from bgap.common.vocab import CLASSES
 from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
@@ -258,7 +259,7 @@ def study_name(cfg: CalibrateAppConfig) -> str:
     """One study per target file (its bytes) and everything that changes a trial's value."""
     c = cfg.calibrate
     keys = {
-        "target": hashlib.sha1(Path(c.target).read_bytes()).hexdigest(),
+        "target": file_digest(c.target, "sha1"),
         "prefix": c.aggressive_prefix,
         "fps": c.target_fps,
         "weights": asdict(c.weights),

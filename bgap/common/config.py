@@ -101,11 +101,15 @@ def load(cfg: DictConfig) -> Any:
     :class:`ConfigError`, which :func:`app` reports in one line. A key the schema does not
     know (Hydra's ``+key=value``, which the schema's objects would drop without a word) and a
     setting removed with ``~key`` (which its default would silently replace, while the saved
-    config lacks it) are refused, so that a run records exactly what it used."""
+    config lacks it) are refused, so that a run records exactly what it used. Then the checks
+    that read files (a schema's ``check_inputs``: replayed tables), which a config built
+    anywhere else (a worker, a trial, a test) does not repeat."""
     obj = validate(cfg)
     if dataclasses.is_dataclass(obj):
         given = OmegaConf.to_container(cfg, resolve=True)
         _same_keys(given, dataclasses.asdict(obj), "")
+    if hasattr(obj, "check_inputs"):  # the checks that read files: once, at the command
+        obj.check_inputs()
     return obj
 
 

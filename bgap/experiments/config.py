@@ -94,6 +94,12 @@ from the sweeps' and the selection's (``val_seed``, 50000 + k), the tuned rule's
 and the tests' (``eval_seed``, 100000 + k), so no other choice is made on these episodes."""
 
 
+def first_validation_seed(checkpoint_rule: str, val_seed: int) -> int:
+    """The first seed of a training's validations: the ``per_km`` checkpoint rule's own
+    block (:data:`CHECKPOINT_SEED`), else ``val_seed``."""
+    return CHECKPOINT_SEED if checkpoint_rule == "per_km" else val_seed
+
+
 @dataclass
 class GridConfig:
     """Evaluation grid (config group ``grid``). An empty list means the run's own value."""
@@ -259,8 +265,12 @@ class ExperimentConfig(BaseConfig):
             apart = f"{CHECKPOINT_SEED} (the per_km checkpoint rule's validation episodes)"
             for key, seed in (("val_seed", self.val_seed), ("eval_seed", self.eval_seed)):
                 check_apart(key, seed, CHECKPOINT_SEED, apart)
-        for density, table in self.grid.replay_tables():  # a table no episode can come from
-            env = env_preset(density) if density else self.env  # fails here, in one line
+
+    def check_inputs(self) -> None:
+        """:meth:`BaseConfig.check_inputs`, and the grid's replayed tables."""
+        super().check_inputs()
+        for density, table in self.grid.replay_tables():
+            env = env_preset(density) if density else self.env
             load_replay(table, env.simulation_frequency, self.traffic.min_duration)
 
 

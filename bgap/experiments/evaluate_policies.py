@@ -16,7 +16,7 @@ from bgap.common.errors import ConfigError
 from bgap.common.runs import CONFIG, MODEL, model_file, run_folders
 from bgap.common.tables import read_table
 from bgap.common.vocab import BASELINES
-from bgap.experiments.config import CHECKPOINT_SEED, ExperimentConfig
+from bgap.experiments.config import ExperimentConfig, first_validation_seed
 
 
 def policy_specs(cfg: ExperimentConfig) -> dict[str, str]:
@@ -109,5 +109,5 @@ def validation_block(settings: dict[str, Any]) -> tuple[str, int, int]:
     return)."""
     profile = settings["profile"]
     rule = profile.get("checkpoint_rule", "return")
-    first = CHECKPOINT_SEED if rule == "per_km" else int(settings["val_seed"])
+    first = first_validation_seed(rule, int(settings["val_seed"]))
     return rule, first, int(profile["eval_during_training"])

@@ -17,7 +17,7 @@ import pandas as pd
 from bgap.analysis.episodes import EPISODES, INPUTS
 from bgap.analysis.stats import per_100km, spread_interval, wilson_interval
 from bgap.common.plotting import pyplot
-from bgap.common.runs import write_atomic
+from bgap.common.runs import file_digest, write_atomic
 from bgap.common.vocab import CRASH_KINDS
 
 STORED = {
@@ -101,16 +101,6 @@ def _hash(values: Any) -> str:
     return hashlib.sha256(json.dumps(values, sort_keys=True, default=str).encode()).hexdigest()
 
 
-def file_hash(path: str | Path) -> str:
-    """sha256 of a file's bytes: a replay table is compared by what it holds, not by its path
-    (a rehearsal writes other tables to the same path)."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def traffic_inputs(
     keys: list[str], configs: list[dict], tables: list[str], seeds: list[int], behavior: Any
 ) -> dict[str, dict[str, str]]:
@@ -123,7 +113,7 @@ def traffic_inputs(
     for key, config, table in zip(keys, configs, tables, strict=True):
         parts = {"episode seeds": _hash(seeds), "behaviour preset": _hash(behavior)}
         if table:
-            by_table.setdefault(table, file_hash(table))
+            by_table.setdefault(table, file_digest(table))
             parts["replay table"] = by_table[table]
             config = copy.deepcopy(config)
             config["traffic"]["table"] = by_table[table]

@@ -28,7 +28,7 @@ from bgap.common.runs import (
     save_run_metadata,
 )
 from bgap.experiments.compat import ADDED_LATER, as_before, upgrade
-from bgap.experiments.config import CHECKPOINT_SEED, ExperimentConfig
+from bgap.experiments.config import ExperimentConfig, first_validation_seed
 from bgap.traffic.behaviors import BehaviorConfig
 
 NOT_LEARNT = (
@@ -91,7 +91,7 @@ def training_identity(cfg: ExperimentConfig) -> dict[str, Any]:
 
 def validation_seed(cfg: ExperimentConfig) -> int:
     """The first seed of a training's periodic validations: the checkpoint rule's block."""
-    return CHECKPOINT_SEED if cfg.profile.checkpoint_rule == "per_km" else cfg.val_seed
+    return first_validation_seed(cfg.profile.checkpoint_rule, cfg.val_seed)
 
 
 def run_name(cfg: ExperimentConfig) -> str:

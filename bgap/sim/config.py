@@ -55,8 +55,13 @@ class BaseConfig:
             "reward.converged=true",
         )
         check_config(env_config(self))  # the one validator both simulators run
+
+    def check_inputs(self) -> None:
+        """The checks that read files, run by a command before it starts
+        (:func:`bgap.common.config.load`), not by every config built: a replayed table no
+        episode can come from fails here, in one line."""
         t = self.traffic
-        if t.source == "replay":  # a table no episode can come from fails here, in one line
+        if t.source == "replay":
             load_replay(t.table, self.env.simulation_frequency, t.min_duration)
 
 

@@ -345,10 +345,13 @@ def load_replay(table: str, simulation_frequency: float, min_duration: float) ->
     if not path.exists():
         raise TrajectoryError(f"traffic.table={table}: no such file")
     stat = path.stat()
-    return _cached(
-        str(path.resolve()),
-        stat.st_mtime_ns,
-        stat.st_size,
-        float(simulation_frequency),
-        float(min_duration),
-    )
+    try:
+        return _cached(
+            str(path.resolve()),
+            stat.st_mtime_ns,
+            stat.st_size,
+            float(simulation_frequency),
+            float(min_duration),
+        )
+    except TrajectoryError as err:  # which table: a grid names several
+        raise TrajectoryError(f"{table}: {err}") from None

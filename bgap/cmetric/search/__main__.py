@@ -12,7 +12,6 @@ use it with ``cmetric=user_tuned``).
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -37,7 +36,7 @@ from bgap.cmetric.truths import broken_truths
 from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
 from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import VOLATILE, digest, save_run_metadata, write_atomic
+from bgap.common.runs import VOLATILE, digest, file_digest, save_run_metadata, write_atomic
 from bgap.common.studies import (
     open_storage,
     plot_convergence,
@@ -84,7 +83,7 @@ def search(cfg: CMetricSearchConfig, progress: bool = True):
 def study_name(cfg: CMetricSearchConfig) -> str:
     """``cmetric-<hash>`` of the tables' bytes and every setting that changes a trial."""
 
-    tables = {d.path: hashlib.sha1(Path(d.path).read_bytes()).hexdigest() for d in cfg.datasets}
+    tables = {d.path: file_digest(d.path, "sha1") for d in cfg.datasets}
     settings = OmegaConf.to_container(OmegaConf.structured(cfg))
     for key in (*NOT_CONTENT, "study"):
         settings.pop(key, None)
