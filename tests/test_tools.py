@@ -86,3 +86,51 @@ def test_every_early_crash_of_the_committed_baselines_replays_and_was_avoidable(
     assert len(checked) > 50
     assert checked.replayed.all()
     assert (checked["actions that survive"] > 0).all()
+
+
+@pytest.mark.slow
+def test_stages_resumes_a_training_the_sessions_end_cut(tmp_path):
+    """A DVC training stage killed after its first checkpoint (as a session's end kills
+    it): tools/stages.sh, run again, resumes it from the checkpoint, records it with DVC and
+    leaves the pipeline up to date; a stage already done is then skipped."""
+    import os
+    import signal
+    import time
+
+    bin_dir = str(Path(sys.executable).parent)  # dvc and python of this environment
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+
+    def sh(*cmd: str) -> subprocess.CompletedProcess:
+        return subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True,
+                              timeout=600)  # fmt: skip
+
+    sh("git", "init", "-q")
+    sh("dvc", "init", "-q")
+    (tmp_path / "dvc.yaml").write_text(
+        "stages:\n  train:\n    foreach: [a]\n    do:\n"
+        "      cmd: python -m bgap.train env=sparse seeds=[0] policies=[behavior_rich] "
+        "profile=tiny profile.train_steps=2400 profile.checkpoint_every=300 "
+        "run_dir=runs/${item}\n"
+        "      outs:\n        - runs/${item}\n"
+    )
+    sh("git", "add", "-A")
+    sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "init")
+    cut = subprocess.Popen(["dvc", "repro", "--single-item", "train@a"], cwd=tmp_path, env=env,
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                           start_new_session=True)  # fmt: skip
+    deadline = time.time() + 300
+    while not list(tmp_path.glob("runs/a/*/checkpoints/state.pkl")) and time.time() < deadline:
+        assert cut.poll() is None, "the stage ended before its first checkpoint"
+        time.sleep(0.5)
+    os.killpg(cut.pid, signal.SIGKILL)
+    cut.wait()
+    assert list(tmp_path.glob("runs/a/*/checkpoints/state.pkl")), "no checkpoint was written"
+    log = tmp_path / "stages.log"
+    done = sh("bash", str(ROOT / "tools/stages.sh"), str(log), "train@a")
+    assert done.returncode == 0, (log.read_text(), (tmp_path / "stages.log.out").read_text())
+    assert log.read_text().split()[:2] == ["resume", "train@a"]
+    assert sh("dvc", "status", "--json").stdout.strip() == "{}"
+    assert list(tmp_path.glob("runs/a/*/model.zip"))
+    again = sh("bash", str(ROOT / "tools/stages.sh"), str(log), "train@a")
+    assert again.returncode == 0
+    assert log.read_text().splitlines()[-3].startswith("start train@a")  # up to date: skipped
