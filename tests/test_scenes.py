@@ -33,3 +33,5 @@ def test_a_table_that_gains_scenes_keeps_every_earlier_scene_on_its_side():
         assert set(train10) <= set(train30) and set(test10) <= set(test30)
     assert split_scenes(TABLES[0], range(30)) != split_scenes(TABLES[3], range(30))  # per table
     assert split_scenes(TABLES[0], range(2)) == ([0, 1], [])  # an incomplete block trains
+    _, gap = split_scenes(TABLES[0], [s for s in range(30) if s != 4])  # block 3-5 lacks 4
+    assert set(gap) == set(split_scenes(TABLES[0], range(30))[1]) - set(range(3, 6))

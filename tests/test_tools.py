@@ -133,4 +133,6 @@ def test_stages_resumes_a_training_the_sessions_end_cut(tmp_path):
     assert list(tmp_path.glob("runs/a/*/model.zip"))
     again = sh("bash", str(ROOT / "tools/stages.sh"), str(log), "train@a")
     assert again.returncode == 0
-    assert log.read_text().splitlines()[-3].startswith("start train@a")  # up to date: skipped
+    assert log.read_text().splitlines()[-3].startswith("start train@a")
+    out = (tmp_path / "stages.log.out").read_text()
+    assert "didn't change, skipping" in out.split("resume=true")[-1]  # up to date: skipped

@@ -118,3 +118,7 @@ def test_aggregate_views_are_the_hand_computed_iqm_and_probability_of_improvemen
     assert "p_improve_idm" not in table  # no idm episodes: no column
     np.testing.assert_allclose(runs["dense"]["x/behavior_rich"][:, 0], r)
     assert "| x behavior-rich | 4 x 2 | " in aggregate_markdown(table)
+    partial = df[~((df.family == "rule") & (df.mix == 1.0))]  # the rule missed a cell
+    (again,) = aggregates(partial)[0].to_dict(orient="records")
+    assert np.isnan(again.get("p_improve_rule", np.nan))  # compared on all its cells or not
+    assert again["iqm_per_100km"] == pytest.approx(r[1] / 4)

@@ -22,12 +22,18 @@ from dvc.repo import Repo
 print("\n".join(str(o.def_path) for o in stage.outs))
 EOF
     )
+    if [ "$(cd "$clone" && dvc status --json "$stage")" != "{}" ]; then
+        echo "bring_back.sh: $stage is not done in $clone (dvc status there); finish it first" >&2
+        exit 2
+    fi
     for out in $outs; do
         rm -rf "$out"
         mkdir -p "$(dirname "$out")"
         cp -r "$clone/$out" "$out"
     done
-    python tools/relock.py relock "$stage" --base "$base" --work "$(mktemp -d)"
+    work=$(mktemp -d)
+    python tools/relock.py relock "$stage" --base "$base" --work "$work"
+    rm -rf "$work"
     dvc repro --single-item "zoo@${stage#*@}"
     echo "brought back $stage and zoo@${stage#*@} (relocked against $base)"
 done

@@ -85,7 +85,8 @@ def held_then(action: int, then) -> callable:
 
 
 def _first_steps(config: dict, policy, seeds: list[int]) -> pd.DataFrame:
-    return rollout(config, policy, seeds, "vector").episodes
+    return rollout(config, policy, seeds, "vector", batch=len(seeds)).episodes  # one batch:
+    # held_then counts the policy's calls as steps
 
 
 def check_episodes(df: pd.DataFrame, folder: Path) -> pd.DataFrame:

@@ -4,6 +4,9 @@
 #
 #   setsid nohup tools/stages.sh LOG STAGE [STAGE ...] &
 #
+# Run it from the root of the repository whose stages it runs (a clone may run the
+# checkout's copy of this script).
+#
 # Stops at the first stage that fails. The log's lines "done STAGE SECONDS" are what a
 # session commits (the stage's lock and its git-kept outputs). Rerun the same line after the
 # session's end cut it: stages already done are skipped (DVC finds them up to date), and a
@@ -15,8 +18,9 @@ set -u
 log=$1
 shift
 
-# Prints the stage's command when it is a training whose outputs hold a checkpoint, and
-# succeeds when the stage is stale too: a training the session's end cut. DVC's own API reads
+# Prints the stage's command when it is a training with a member cut midway (a checkpoint,
+# no final model), and succeeds when the stage is stale too: a training the session's end
+# cut. DVC's own API reads
 # dvc.yaml, so foreach stages expand as `dvc repro` would expand them.
 resumable() {
     python - "$1" <<'EOF'
@@ -26,8 +30,11 @@ from pathlib import Path
 from dvc.repo import Repo
 
 (stage,) = Repo().stage.collect(sys.argv[1])
-saved = any(Path(o.fs_path).rglob("state.pkl") for o in stage.outs if Path(o.fs_path).is_dir())
-if saved and "bgap.train" in stage.cmd:
+folders = [Path(o.fs_path) for o in stage.outs if Path(o.fs_path).is_dir()]
+# a member cut midway: a checkpoint in its run folder and no final model beside it (a
+# finished training's folder keeps its checkpoint too; a stale finished stage is retrained)
+cut = [s for f in folders for s in f.rglob("checkpoints/state.pkl")]
+if "bgap.train" in stage.cmd and any(not (s.parent.parent / "model.zip").exists() for s in cut):
     print(stage.cmd)
 EOF
     [ "$(dvc status --json "$1")" != "{}" ]  # stale: not recorded as done

@@ -58,15 +58,12 @@ def aggregates(df: pd.DataFrame) -> tuple[pd.DataFrame, dict[str, dict[str, np.n
         g = read_cells(df, density)
         if g.empty:
             continue
-        mixes = sorted(set(g.mix))
         here = {}
-        for y in YARDSTICKS:
-            if (g.family == y).any():
-                here[y] = run_rates(g[g.family == y], mixes)
         for (arm, family), pol in g[g.arm != ""].groupby(["arm", "family"], sort=True):
+            mixes = sorted(set(pol.mix))  # the policy's own cells; each driver on the same
             scores = run_rates(pol, mixes)
             if np.isnan(scores).any():
-                continue  # a seed missed a cell: another grid
+                continue  # a training seed missed one of its arm's cells: not comparable
             here[f"{arm}/{family}"] = scores
             row = {
                 "density": density,
@@ -78,10 +75,16 @@ def aggregates(df: pd.DataFrame) -> tuple[pd.DataFrame, dict[str, dict[str, np.n
                 "iqm_per_100km": float(aggregate_iqm(scores)),
             }
             for y in YARDSTICKS:
-                if y in here:  # rliable counts higher as better: fewer collisions, negated
-                    row[f"p_improve_{y}"] = float(probability_of_improvement(-scores, -here[y]))
+                yard = run_rates(g[g.family == y], mixes)
+                if yard.size and not np.isnan(yard).any():  # played every one of the cells
+                    # rliable counts higher as better: fewer collisions, negated
+                    row[f"p_improve_{y}"] = float(probability_of_improvement(-scores, -yard))
             rows.append(row)
-        runs[density] = here
+        for y in YARDSTICKS:  # the profiles: each driver on every cell it played
+            if (g.family == y).any():
+                here[y] = run_rates(g[g.family == y], sorted(set(g[g.family == y].mix)))
+        if here:
+            runs[density] = here
     return pd.DataFrame(rows), runs
 
 
@@ -105,7 +108,8 @@ def markdown(table: pd.DataFrame) -> str:
             "|---|---|---|---|" + "---|" * len(yards),
         ]
         for r in here.itertuples():
-            cells = " | ".join(f"{getattr(r, f'p_improve_{y}'):.2f}" for y in yards)
+            values = [getattr(r, f"p_improve_{y}") for y in yards]
+            cells = " | ".join("-" if np.isnan(v) else f"{v:.2f}" for v in values)
             lines.append(
                 f"| {r.arm} {r.family.replace('_', '-')} | {r.n_seeds} x {r.n_cells} | "
                 f"{r.mean_per_100km:.2f} | {r.iqm_per_100km:.2f} | {cells} |"
@@ -118,7 +122,7 @@ def profiles_figure(runs: dict[str, dict[str, np.ndarray]], path: Path) -> bool:
     """Performance profiles, one panel per density and learned family: the share of runs
     (training seed x cell) with at most tau collisions per 100 km, each arm's policy beside
     the hand-built drivers. False (nothing written) without runs."""
-    if not runs:
+    if not any(runs.values()):
         return False
     plt = pyplot()
     densities = list(runs)

@@ -65,6 +65,7 @@ def runs(root: Path) -> pd.DataFrame:
         if not (folder / CONFIG).exists():
             continue
         cfg = run_config(folder)
+        cfg.check_inputs()  # a replayed table moved or changed since: refused before any job
         rows.append(
             {
                 "run": folder,

@@ -62,7 +62,7 @@ class WatchConfig(BaseConfig):
     backend: str = "vector"
 
     def __post_init__(self) -> None:
-        # before the base checks, which read a replay's table: refused either way
+        # before the base checks: refused whatever the table
         check(
             self.traffic.source != "replay",
             "traffic",

@@ -7,9 +7,10 @@ Scenes are numbered 0, 1, 2, ... (the replay's scene ids) and taken in blocks of
 (0-2, 3-5, ...): in each block, the scene with the smallest ``sha256("<table>/<scene>")``
 is held out for testing. So exactly a third of a table's scenes test when their number is a
 multiple of three; the split needs no stored list and is the same on every machine; and a
-table that gains blocks keeps every earlier scene on its side. A last block of one or two
-scenes holds none out, and completing it can move one of its scenes to test: generate
-scenes in multiples of three. Why not a seeded shuffle: its sides move whenever the number
+table that gains blocks keeps every earlier scene on its side. A block with an id missing
+(the last of a table whose count is no multiple of three, or a gap in the ids) holds none
+out, and completing it can move one of its scenes to test: generate scenes in multiples of
+three, numbered from 0. Why not a seeded shuffle: its sides move whenever the number
 of scenes changes; why not a hash threshold per scene: at 30 scenes its held-out count
 ranges widely (5 to 15 on the four SUMO tables' names).
 """
@@ -27,19 +28,23 @@ def _rank(table: str, scene: int) -> str:
     return hashlib.sha256(f"{table}/{scene}".encode()).hexdigest()
 
 
-def is_test_scene(table: str, scene: int, scenes: int) -> bool:
-    """Whether scene ``scene`` of the table named ``table``, which has ``scenes`` scenes
-    numbered from 0, is held out for testing."""
-    start = scene - scene % BLOCK
-    if start + BLOCK > scenes:
-        return False  # an incomplete last block trains
-    block = range(start, start + BLOCK)
-    return scene == min(block, key=lambda s: _rank(table, s))
+def held_out_scenes(table: str, scenes: Iterable[int]) -> set[int]:
+    """The scene ids among ``scenes`` of the table named ``table`` that are held out: in each
+    block of three ids (0-2, 3-5, ...) whose three ids are all present, the one with the
+    smallest hash (module docstring); a block with an id missing holds none out."""
+    present = {int(s) for s in scenes}
+    blocks = {s - s % BLOCK for s in present}
+    held = set()
+    for start in blocks:
+        block = range(start, start + BLOCK)
+        if all(s in present for s in block):
+            held.add(min(block, key=lambda s: _rank(table, s)))
+    return held
 
 
 def split_scenes(table: str, scenes: Iterable[int]) -> tuple[list[int], list[int]]:
-    """The scene ids ``scenes`` (0 to n - 1, in any order) of ``table`` as (training scenes,
-    test scenes), each in the given order."""
+    """The scene ids ``scenes`` of ``table`` as (training scenes, test scenes), each in the
+    given order (:func:`held_out_scenes`)."""
     scenes = [int(s) for s in scenes]
-    test = {s for s in scenes if is_test_scene(table, s, len(scenes))}
-    return [s for s in scenes if s not in test], [s for s in scenes if s in test]
+    held = held_out_scenes(table, scenes)
+    return [s for s in scenes if s not in held], [s for s in scenes if s in held]
