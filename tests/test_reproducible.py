@@ -22,12 +22,14 @@ RERUNNING: set[str] = (
     | {f"train_learner@{a}-{d}" for a in _LEARNERS for d in ("sparse", "dense")}
     | {f"zoo@{a}-{d}" for a in _ARMS + _LEARNERS for d in ("sparse", "dense")}
     | {f"evaluate@{a}" for a in _ARMS + _LEARNERS}
-    | {"evaluate_baselines"}
+    | {"evaluate_baselines", "figures"}
 ) - _DONE
 """Stages whose committed lock predates a change to what they compute, being rerun, or not
 run yet: the study retrained with the per-kilometre checkpoint rule on 100 validation
 episodes, each stage's policies exported to the zoo and evaluated from it, every
-evaluation recording its traffic inputs (the baselines' too). Each must still
+evaluation recording its traffic inputs (the baselines' too), on the 30-scene replay
+tables; ``figures`` once every evaluation is rerun (until then it refuses the older arms'
+replay cells, which played the 10-scene tables). Each must still
 be stale (a rerun stage leaves this set in the same commit); no other stage may be."""
 
 
