@@ -136,3 +136,64 @@ def test_stages_resumes_a_training_the_sessions_end_cut(tmp_path):
     assert log.read_text().splitlines()[-3].startswith("start train@a")
     out = (tmp_path / "stages.log.out").read_text()
     assert "didn't change, skipping" in out.split("resume=true")[-1]  # up to date: skipped
+
+
+@pytest.mark.slow
+def test_bring_back_records_the_clones_lock_entry_and_refuses_an_unfinished_stage(tmp_path):
+    """A training stage a clone finished comes back with its outputs and the clone's own
+    lock entry (this checkout computes the same one), its zoo stage run here, the pipeline
+    up to date; a stage the clone has not finished is refused with exit 2."""
+    import os
+    import shutil
+
+    bin_dir = str(Path(sys.executable).parent)
+    env = {**os.environ, "PATH": f"{bin_dir}{os.pathsep}{os.environ['PATH']}"}
+
+    def sh(cwd: Path, *cmd: str) -> subprocess.CompletedProcess:
+        return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True,
+                              timeout=300)  # fmt: skip
+
+    here, clone = tmp_path / "here", tmp_path / "clone"
+    (here / "tools").mkdir(parents=True)
+    shutil.copy(ROOT / "tools/bring_back.sh", here / "tools/bring_back.sh")
+    (here / "code.txt").write_text("7\n")
+    (here / "dvc.yaml").write_text(
+        "stages:\n  train:\n    foreach: [a, b]\n    do:\n"
+        "      cmd: mkdir -p runs/${item} && cat code.txt code.txt > runs/${item}/model\n"
+        "      deps: [code.txt]\n      outs:\n        - runs/${item}\n"
+        "  zoo:\n    foreach: [a, b]\n    do:\n"
+        "      cmd: mkdir -p zoo && cp runs/${item}/model zoo/${item}\n"
+        "      deps:\n        - runs/${item}\n      outs:\n        - zoo/${item}:\n"
+        "            cache: false\n"
+    )
+    sh(here, "git", "init", "-q")
+    sh(here, "dvc", "init", "-q")
+    sh(here, "git", "add", "-A")
+    sh(here, "git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "init")
+    sh(tmp_path, "git", "clone", "-q", str(here), str(clone))
+    assert sh(clone, "dvc", "repro", "--single-item", "train@a").returncode == 0
+
+    back = sh(here, "bash", "tools/bring_back.sh", str(clone), "train@a")
+    assert back.returncode == 0, back.stderr
+    assert "recorded: the clone's lock entry exactly" in back.stdout
+    import yaml
+
+    ours = yaml.safe_load((here / "dvc.lock").read_text())["stages"]
+    theirs = yaml.safe_load((clone / "dvc.lock").read_text())["stages"]
+    assert ours["train@a"] == theirs["train@a"]
+    assert (here / "zoo/a").read_text() == "7\n7\n"
+    status = sh(here, "dvc", "status", "--json", "train@a", "zoo@a")
+    assert status.stdout.strip() == "{}", status.stdout
+
+    refused = sh(here, "bash", "tools/bring_back.sh", str(clone), "train@b")
+    assert refused.returncode == 2
+    assert "train@b is not done" in refused.stderr
+
+    # the code here moved: the clone's entry is not recorded, the lock is put back and the
+    # relock is called (absent from this tiny repository, so the script stops there)
+    (here / "code.txt").write_text("8\n")
+    lock = (here / "dvc.lock").read_text()
+    moved = sh(here, "bash", "tools/bring_back.sh", str(clone), "train@a")
+    assert moved.returncode != 0
+    assert "recorded" not in moved.stdout and "tools/relock.py" in moved.stderr
+    assert (here / "dvc.lock").read_text() == lock
