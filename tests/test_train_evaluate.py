@@ -556,6 +556,38 @@ def test_the_per_km_rule_prefers_safety_per_km_at_the_speed_floor_over_return(tm
     assert kept == [0, 5]  # the return rule keeps the collapsed policy
 
 
+def test_the_per_km_floor_is_the_slower_references_so_stock_checkpoints_are_not_chosen_by_speed(
+    tmp_path,
+):
+    """Stock dense traffic as a default policy's training validated it (seed 1 of the main
+    arm): idle crashes in 99% of the episodes at 24.25 m/s, the rule-based ego in none at
+    22.04. Under idle's floor (21.8 m/s) no validation was fast enough and the fastest,
+    35.3 collisions per 100 km, was kept; under the slower reference's (19.84 m/s) the safest
+    of those fast enough is. Hand-computed."""
+    from bgap.agents.monitor import TrainingMonitor, rank
+
+    validations = [  # (collisions per 100 km, mean speed), every 50 episodes
+        (35.3, 20.52), (16.4, 19.86), (8.8, 19.91), (0.9, 19.62), (14.0, 20.51),
+        (4.3, 20.04), (1.7, 19.89), (0.0, 19.70),
+    ]  # fmt: skip
+    references = {"idle_avg_speed": 24.25, "rule_avg_speed": 22.04}
+    records = [{"episodes": 50 * (i + 1), "per_100km": c, "avg_speed": v, **references}
+               for i, (c, v) in enumerate(validations)]  # fmt: skip
+    monitor = TrainingMonitor(tmp_path, 1, {}, "vector", None, 0, 1, 0, checkpoint_rule="per_km")
+
+    class Policy:
+        def save(self, path):
+            Path(path).write_text("model")
+
+    for record in records:
+        monitor._keep_if_best(Policy(), record)
+    assert json.loads((tmp_path / "best.json").read_text())["episodes"] == 350  # 1.7 at 19.89
+    # 0.9 and 0.0 per 100 km crawl under 19.836 m/s: 100 + their shortfall
+    assert rank(records[7], "per_km")[0] == pytest.approx(100 + 100 * (19.836 - 19.70) / 19.836)
+    idle_only = [{k: v for k, v in r.items() if k != "rule_avg_speed"} for r in records]
+    assert min(range(8), key=lambda i: rank(idle_only[i], "per_km")) == 0  # idle's floor
+
+
 def test_a_training_under_the_per_km_rule_keeps_every_validation_and_the_one_it_ranks_first(
     tmp_path,
 ):
@@ -577,7 +609,7 @@ def test_a_training_under_the_per_km_rule_keeps_every_validation_and_the_one_it_
     assert table.idle_avg_speed.iloc[0] == pytest.approx(idle.avg_speed.mean())
     distance = (idle.avg_speed * idle.steps).sum() / env_config(cfg)["policy_frequency"]
     assert table.idle_per_100km.iloc[0] == pytest.approx(idle.crashed.sum() / distance * 1e5)
-    floor = 0.9 * table.idle_avg_speed
+    floor = 0.9 * np.minimum(table.idle_avg_speed, table.rule_avg_speed)
     short = 100 + 100 * (floor - table.avg_speed) / floor
     score = np.where(table.avg_speed >= floor, table.per_100km, short)
     order = sorted(range(len(table)), key=lambda i: (score[i], -table.avg_speed[i], -i))

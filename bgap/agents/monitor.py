@@ -79,14 +79,13 @@ class TrainingMonitor:
     ``checkpoint_rule`` (:func:`rank`). ``return``: the evaluation with the highest mean
     validation return (ties: the later), the rule of SB3's ``EvalCallback``: the training's
     own reward weighs crashes against speed. ``per_km``: the study's own reading, the fewest
-    collisions per 100 km among evaluations at least ``SPEED_FLOOR`` x idle's speed on the
-    same episodes, with every evaluation's parameters kept in ``validations/`` so that the
-    choice can be checked, or made again by another rule, without retraining. The paper keeps
-    no checkpoint selection; the authors' code keeps the last model. Ours: one rule for every
-    policy, on validation episodes only, so a training that ends in a bad stretch (seen in
-    dense traffic) is not judged by its last parameters. (A rule on collisions at a floor of
-    idle's speed fails in stock traffic: idle never brakes there, so the only checkpoints as
-    fast as the floor are early ones that crash in most episodes.)
+    collisions per 100 km among evaluations at least ``SPEED_FLOOR`` x the slower of the idle
+    and rule-based egos' speeds on the same episodes (:func:`rank`), with every evaluation's
+    parameters kept in ``validations/`` so that the choice can be checked, or made again by
+    another rule, without retraining. The paper keeps no checkpoint selection; the authors'
+    code keeps the last model. Ours: one rule for every policy, on validation episodes only,
+    so a training that ends in a bad stretch (seen in dense traffic) is not judged by its
+    last parameters.
 
     Args:
         run_dir: the run folder (``evaluations.csv``, ``checkpoints/``).
@@ -246,11 +245,20 @@ def rank(record: dict[str, Any], rule: str) -> tuple[float, ...]:
     """A validation's place under ``rule``, lower first: ``return``, the mean validation
     return; ``per_km``, the constrained score on kilometres
     (:func:`~bgap.common.scores.constrained_score`: collisions per 100 km where the mean
-    speed reaches ``SPEED_FLOOR`` x idle's on the same episodes, else 100 + the shortfall),
-    then the faster. Equal ranks go to the later validation."""
+    speed reaches ``SPEED_FLOOR`` x the reference speed, else 100 + the shortfall), then the
+    faster. Equal ranks go to the later validation.
+
+    The reference is the slower of the idle and the rule-based egos on the same episodes
+    (idle's alone where a record lacks the rule's). The floor is there to keep out a crawl,
+    a policy safe only by being slow; a reference that does not brake sets one no safe
+    driver reaches: in stock traffic idle crashes in 99% of dense validation episodes at
+    24.3 m/s, where the rule-based ego crashes in none at 22.0, and under idle's floor every
+    stock-trained checkpoint ranked by its shortfall alone, the fastest kept whatever it
+    crashed. In bgap's traffic idle is the slower of the two and the floor is idle's."""
     if rule == "return":
         return (-record["return"],)
-    score = constrained_score(record["per_100km"], record["avg_speed"], record["idle_avg_speed"])
+    reference = min(record["idle_avg_speed"], record.get("rule_avg_speed", np.inf))
+    score = constrained_score(record["per_100km"], record["avg_speed"], reference)
     return (score, -record["avg_speed"])
 
 

@@ -129,8 +129,8 @@ def _rule(cfg: dict[str, Any]) -> str:
     """How the run chose its checkpoint, with the validation episodes' seeds."""
     rule, first, n = validation_block(cfg)
     how = (
-        f"the fewest collisions per 100 km at {SPEED_FLOOR} x idle's speed or more (ties: the "
-        "faster)"
+        f"the fewest collisions per 100 km at {SPEED_FLOOR} x the slower of the idle and "
+        "rule-based egos' speeds or more (ties: the faster)"
         if rule == "per_km"
         else "the highest mean return"
     )
