@@ -461,3 +461,48 @@ def test_the_saved_config_is_the_composed_config_the_command_used(
         assert config == "zoo" and (tmp_path / "o/behavior_rich/s0.yaml").exists()
         return
     assert yaml.safe_load(saved.read_text()) == expected
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("density", ["sparse", "dense"])
+def test_a_fresh_clone_replays_a_committed_cell_from_the_zoo_row_for_row(
+    density, tmp_path, monkeypatch, capsys
+):
+    """No DVC cache, no run folder: the committed zoo's seed-0 behaviour-rich policy of the
+    main arm, evaluated on one committed cell (mix 0.5, radius 180), gives that cell's
+    committed episodes row for row, every column equal, under the study's policy name."""
+    root = Path(__file__).resolve().parent.parent
+    folder = root / "results/evaluation/main/paper"
+    if not (folder / "inputs.json").exists():
+        pytest.skip("the committed evaluation of the main arm predates the zoo")
+    monkeypatch.setenv("BGAP_ZOO", str(root / "zoo"))
+    name = f"main/{density}/behavior_rich/s0"
+    if not (root / "zoo" / f"{name}.zip").exists():
+        pytest.skip(f"zoo:{name} is not committed yet")
+    committed = pd.read_parquet(folder / "episodes.parquet")
+    committed = committed[
+        (committed.policy == f"main/{density}/{density}-behavior_rich-s0")
+        & (committed.density == density)
+        & np.isclose(committed.mix, 0.5)
+        & np.isclose(committed.radius, 180.0)
+    ].reset_index(drop=True)
+    assert len(committed) == 100
+    status, _, err = command(
+        "bgap.evaluate",
+        [
+            f"models=[zoo:{name}]",
+            "baselines=[]",
+            f"env={density}",
+            "mix=0.5",
+            "radius=180",
+            "behavior=paper",
+            "backend=vector",
+            "profile.eval_episodes=100",
+            f"out={tmp_path}",
+        ],
+        monkeypatch,
+        capsys,
+    )
+    assert status == 0, err
+    replayed = pd.read_parquet(tmp_path / "episodes.parquet")
+    pd.testing.assert_frame_equal(replayed[committed.columns], committed)
