@@ -465,15 +465,20 @@ def test_an_arm_that_played_other_traffic_is_left_out_and_named():
     assert _left_out([]) == []
 
 
-def test_the_committed_selection_arm_replayed_other_tables():
-    """The committed study: only the selection arm's replayed cells (a rehearsal's tables,
-    windows of at most 29 steps) differ from the baselines' traffic."""
+def test_the_committed_arms_not_yet_reevaluated_replayed_other_tables():
+    """The committed study, checked from its episodes: the baselines play the 30-scene
+    replay tables, so every arm evaluated before them (no ``inputs.json``: the selection
+    arm on a rehearsal's tables, the others on the 10-scene ones) differs in its eight
+    replayed cells and nowhere else, and no arm evaluated since differs at all."""
     from bgap.analysis.inputs import mismatched_traffic
 
-    df, _ = load_evaluations([Path(__file__).parents[1] / "results/evaluation"])
+    root = Path(__file__).parents[1] / "results/evaluation"
+    df, _ = load_evaluations([root])
     found = mismatched_traffic(df)
-    assert {m.arm for m in found} == {"learner-dqn-k3"}
-    assert len(found) == 8 and all(m.traffic.startswith("replay/") for m in found)
+    older = {p.name for p in root.iterdir() if not (p / "replay/inputs.json").exists()}
+    assert {m.arm for m in found} == older - {"baselines"}
+    assert len(found) == 8 * len(older - {"baselines"})
+    assert all(m.traffic.startswith("replay/") for m in found)
 
 
 def test_the_readme_summary_agrees_with_the_committed_results():
