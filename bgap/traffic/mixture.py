@@ -41,6 +41,9 @@ class MixtureConfig:
     scale: tuple[float, float] = (0.8, 1.2)
     """Each vehicle's IDM and MOBIL parameters are its class's times a factor drawn
     uniformly in this range (bgap's source)."""
+    tables: list[str] = field(default_factory=list)
+    """Replay tables whose training scenes the replay source plays, reactive
+    (:mod:`bgap.traffic.scenes` holds a third of each table's scenes out for testing)."""
 
     def __post_init__(self) -> None:
         weights = list(self.sources.values())

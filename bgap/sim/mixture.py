@@ -1,0 +1,306 @@
+"""The generalisation study's training traffic on the vector backend: ``MixtureHighway``, one
+gymnasium vector environment whose episodes draw their traffic from the mixture of
+:mod:`bgap.traffic.mixture` (``docs/notes/2026-12-07-generalisation-plan.md``).
+
+    env = MixtureHighway(config, num_envs=64, mixture=MixtureConfig(tables=[...]))
+    obs, info = env.reset(seed=0)          # env k seeded seed + k, as VectorHighway
+    env.sources()                          # each env's current episode's source
+
+The vector backend holds one vehicle count per batch, and a replayed table brings its own
+lanes and vehicles, so the environment is a row of member batches, each a
+:class:`~bgap.sim.vector.VectorHighway`, stepped one after another:
+
+- **simulated members**, one per vehicle count, sharing the simulated environments as
+  :func:`~bgap.traffic.mixture.vehicle_groups` says. Each episode draws bgap's drivers (a
+  behaviour preset, an aggressive share, a factor per vehicle on its IDM and MOBIL
+  parameters) or highway-env's stock traffic, with the two sources' weights;
+- **replayed members**, one per table, reactive, whose windows come from the table's
+  training scenes only (:func:`bgap.traffic.scenes.split_scenes`).
+
+So the replay source is drawn per environment, not per episode as the plan's table says: a
+replayed environment cannot turn into a simulated one at a reset. Its weight is the share of
+the environments (rounded, at least one per table while the weight is positive), and so,
+near enough, of the training steps. Every member observes the same number of rows, so one
+policy reads them all.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Sequence
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode
+
+from bgap.common.errors import ConfigError, check
+from bgap.common.presets import load_preset, preset_path
+from bgap.sim import core
+from bgap.sim.vector import _PCG64, VectorHighway
+from bgap.traffic.behaviors import BehaviorConfig, count_aggressive
+from bgap.traffic.mixture import EpisodeTraffic, MixtureConfig, draw, vehicle_groups
+from bgap.traffic.scenes import split_scenes
+
+VEHICLE_LENGTH = 5.0
+"""highway-env's Vehicle.LENGTH: a DISTANCE_WANTED column holds the bumper gap plus it."""
+SCALED = (core.P_T, core.P_A, core.P_B, core.P_POLITENESS, core.P_GAIN, core.P_BSAFE)
+"""The IDM and MOBIL parameter columns a vehicle's factor multiplies, beside the bumper gap
+(DELTA keeps highway-env's own per-vehicle draw; v0 keeps its class's spread)."""
+_STREAM = 0x6D6978
+"""Mixed into an env's seed for its own stream of traffic draws (:func:`draw_stream`)."""
+
+
+def draw_stream(seed: int) -> np.random.Generator:
+    """The stream of an env seeded ``seed`` that draws its episodes' traffic: its own, so the
+    scene draws are the scene stream's whatever the mixture draws."""
+    return np.random.default_rng([_STREAM, int(seed)])
+
+
+def table_name(table: str | Path) -> str:
+    """The name a table's scenes are split by: its folder's for the pipeline's
+    ``<name>/trajectories.parquet``, else the file's stem."""
+    path = Path(table)
+    return path.parent.name if path.stem == "trajectories" else path.stem
+
+
+def scale_parameters(p: np.ndarray, factors: np.ndarray) -> None:
+    """Multiply each vehicle's (row's) IDM and MOBIL parameters by its factor, in place; the
+    minimum gap is scaled bumper to bumper."""
+    f = np.asarray(factors, dtype=float)[:, None]
+    p[:, SCALED] *= f
+    gap = p[:, core.P_D0] - VEHICLE_LENGTH
+    p[:, core.P_D0] = gap * f[:, 0] + VEHICLE_LENGTH
+
+
+def _seeds(seed: int | Sequence[int] | None, n: int) -> list[int] | None:
+    if seed is None:
+        return None
+    seeds = list(seed) if isinstance(seed, Sequence) else [seed + k for k in range(n)]
+    if len(seeds) != n:
+        raise ValueError(f"got {len(seeds)} seeds for {n} envs")
+    return seeds
+
+
+class DrawnTraffic(VectorHighway):
+    """A VectorHighway whose every episode draws its traffic from ``mixture``'s simulated
+    sources (bgap's drivers, stock traffic) with their weights."""
+
+    def __init__(self, config: dict[str, Any], num_envs: int, mixture: MixtureConfig) -> None:
+        super().__init__(config, num_envs)
+        simulated = {k: w for k, w in mixture.sources.items() if k != "replay" and w > 0}
+        self.mixture = replace(mixture, sources=simulated)
+        self._tables = {"stock": self._table_of(_behavior("stock"))}
+        for name in self.mixture.classes:
+            self._tables[name] = self._table_of(_behavior(name))
+        self._draw_rngs = [np.random.default_rng() for _ in range(self.num_envs)]
+        self.drawn: list[EpisodeTraffic | None] = [None] * self.num_envs
+        """Each env's current episode's draw."""
+
+    def _table_of(self, behavior: dict[str, Any]) -> np.ndarray:
+        self.behavior = behavior
+        return self._class_table()
+
+    def reset(self, *, seed: Any = None, options: dict | None = None):
+        seeds = _seeds(seed, self.num_envs)
+        if seeds is not None:
+            self._draw_rngs = [draw_stream(s) for s in seeds]
+        return super().reset(seed=seeds, options=options)
+
+    def _spawn(self, envs: np.ndarray) -> None:
+        """Each env's episode drawn, then the scenes spawned with the drawn classes and shares
+        (stock traffic: no vehicle labelled aggressive), one compiled call per class table,
+        then each vehicle's factor applied.
+
+        VectorHighway._spawn takes one class table and one mix rule per call, so its compiled
+        call is made here per drawn table (one call per env cost 7 ms each, a thread pool's
+        start); moving this into VectorHighway would change code every study stage reads."""
+        envs = np.asarray(envs, dtype=np.int64)
+        tables: dict[str, list[int]] = {}
+        for b in envs:
+            episode = draw(self.mixture, self._draw_rngs[b], self.n)
+            self.drawn[b] = episode
+            stock = episode.source == "stock"
+            self.n_aggressive[b] = 0 if stock else count_aggressive(episode.mix, self.n)
+            tables.setdefault("stock" if stock else episode.behavior, []).append(int(b))
+        for name, members in tables.items():
+            group = np.array(members, dtype=np.int64)
+            states = np.array(
+                [self._rngs[b].bit_generator.ctypes.state_address for b in group], np.uint64
+            )
+            core.spawn_batch(
+                self.f,
+                self.g,
+                self.p,
+                group,
+                self.n_aggressive[group],
+                self._ego_lane,
+                self._setup,
+                self.speeds,
+                self._tables[name],
+                _PCG64.next_double,
+                _PCG64.next_uint32,
+                states,
+            )
+        self.steps[envs] = 0
+        for b in envs:
+            if self.drawn[b].scale:
+                scale_parameters(self.p[b, 1:], np.asarray(self.drawn[b].scale))
+
+
+def _behavior(name: str) -> dict[str, Any]:
+    """The packaged behaviour preset ``name`` as the environment config's ``behavior``."""
+    path = preset_path("behavior", name)
+    if not path.exists():
+        choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
+        raise ConfigError(f"mixture.classes: no behaviour preset {name!r}; use {choices}")
+    preset = load_preset(BehaviorConfig, path)
+    return {
+        "name": preset.name,
+        "conservative": asdict(preset.conservative),
+        "aggressive": asdict(preset.aggressive),
+    }
+
+
+class TrainingScenes(VectorHighway):
+    """A VectorHighway replaying ``table`` reactively, its windows drawn from the table's
+    training scenes only."""
+
+    def __init__(self, config: dict[str, Any], num_envs: int, table: str, min_duration: float):
+        traffic = {"source": "replay", "table": str(table), "mode": "reactive"}
+        traffic |= {"min_duration": min_duration, "vehicle": None, "start": None, "scene": None}
+        super().__init__({**config, "traffic": traffic}, num_envs)
+        numbers = [scene.number for scene in self.replay.scenes]
+        self.training_scenes, self.test_scenes = split_scenes(table_name(table), numbers)
+        kept = set(self.training_scenes)
+        replay = copy.copy(self.replay)  # the loaded table is shared: filter a copy
+        scenes = replay.scenes
+        replay.candidates = [(s, v) for s, v in replay.candidates if scenes[s].number in kept]
+        check(
+            bool(replay.candidates),
+            "mixture.tables",
+            str(table),
+            "a table with training scenes (at least one complete block of three)",
+        )
+        self.replay = replay
+
+    def reset(self, *, seed: Any = None, options: dict | None = None):
+        return super().reset(seed=_seeds(seed, self.num_envs), options=options)
+
+
+def member_sizes(mixture: MixtureConfig, num_envs: int) -> tuple[list[tuple[int, int]], list[int]]:
+    """(vehicle count, environments) per simulated member and environments per replayed
+    table: the replay weight's share of ``num_envs``, rounded, at least one per table while
+    the weight is positive, the rest simulated."""
+    total = sum(mixture.sources.values())
+    replay_weight = mixture.sources.get("replay", 0.0) / total
+    tables = list(mixture.tables)
+    check(
+        replay_weight == 0 or bool(tables),
+        "mixture.tables",
+        tables,
+        "one replay table or more (the replay source has weight "
+        f"{replay_weight:g}), or mixture.sources.replay=0",
+    )
+    replayed = 0
+    if replay_weight > 0:
+        replayed = max(len(tables), int(round(replay_weight * num_envs)))
+    shares = [replayed // len(tables) + (i < replayed % len(tables)) for i in range(len(tables))]
+    groups = vehicle_groups(mixture, num_envs - replayed) if replay_weight < 1 else []
+    return groups, shares if replayed else [0] * len(tables)
+
+
+class MixtureHighway(gym.vector.VectorEnv):
+    """``num_envs`` highways whose traffic is drawn from ``mixture`` (module docstring).
+
+    Args:
+        config: the environment's config dictionary (:func:`bgap.traffic.scenario.env_config`);
+            its vehicle count and traffic are the mixture's, the rest (observation rows,
+            radius, reward, speeds) every member's.
+        num_envs: environments in all.
+        mixture: the weights and ranges, and the replay tables (``mixture.tables``).
+        min_duration: a replayed window's shortest length [s].
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(
+        self,
+        config: dict[str, Any],
+        num_envs: int,
+        mixture: MixtureConfig,
+        min_duration: float = 20.0,
+    ) -> None:
+        groups, shares = member_sizes(mixture, int(num_envs))
+        base = {k: v for k, v in config.items() if k != "traffic"}
+        self.members: list[VectorHighway] = [
+            DrawnTraffic({**base, "vehicles_count": count}, n, mixture) for count, n in groups
+        ]
+        self.members += [
+            TrainingScenes(base, n, table, min_duration)
+            for table, n in zip(mixture.tables, shares, strict=True)
+            if n
+        ]
+        self.num_envs = sum(m.num_envs for m in self.members)
+        self._edges = np.cumsum([0] + [m.num_envs for m in self.members])
+        self.single_observation_space = self.members[0].single_observation_space
+        self.single_action_space = spaces.Discrete(5)
+        rows = self.single_observation_space.shape
+        self.observation_space = spaces.Box(-1.0, 1.0, (self.num_envs, *rows), np.float32)
+        self.action_space = spaces.MultiDiscrete(np.full(self.num_envs, 5))
+
+    def sources(self) -> list[str]:
+        """Each env's current episode's source: ``bgap``, ``stock`` or ``replay``."""
+        out: list[str] = []
+        for m in self.members:
+            drawn = getattr(m, "drawn", None)
+            out += [d.source for d in drawn] if drawn is not None else ["replay"] * m.num_envs
+        return out
+
+    def reset(self, *, seed: Any = None, options: dict | None = None):
+        seeds = _seeds(seed, self.num_envs)
+        parts = []
+        for m, lo, hi in zip(self.members, self._edges[:-1], self._edges[1:], strict=True):
+            parts.append(m.reset(seed=None if seeds is None else seeds[lo:hi], options=options))
+        return np.concatenate([o for o, _ in parts]), _merge([i for _, i in parts])
+
+    def step(self, actions: np.ndarray):
+        actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
+        parts = [
+            m.step(actions[lo:hi])
+            for m, lo, hi in zip(self.members, self._edges[:-1], self._edges[1:], strict=True)
+        ]
+        obs, rewards, terminated, truncated = (
+            np.concatenate([p[k] for p in parts]) for k in range(4)
+        )
+        return obs, rewards, terminated, truncated, _merge([p[4] for p in parts])
+
+    def close(self, **kwargs: Any) -> None:
+        for m in self.members:
+            m.close()
+
+
+def _merge(infos: list[dict[str, Any]]) -> dict[str, Any]:
+    """Members' info dicts as one: each per-env array concatenated, a key some member lacks
+    filled (``final_obs`` and its ``_`` mask: None and False) and the reward terms merged."""
+    sizes = [len(i["speed"]) for i in infos]
+    out: dict[str, Any] = {}
+    keys = [k for k in dict.fromkeys(k for i in infos for k in i) if k != "rewards"]
+    for key in keys:
+        parts = []
+        for info, n in zip(infos, sizes, strict=True):
+            if key in info:
+                parts.append(np.asarray(info[key]))
+            elif key == "final_obs":
+                parts.append(np.full(n, None, dtype=object))
+            else:
+                parts.append(np.zeros(n, dtype=bool))  # a mask, or a replay-only flag
+        out[key] = np.concatenate(parts)
+    if all("rewards" in i for i in infos):
+        out["rewards"] = {
+            k: np.concatenate([i["rewards"][k] for i in infos]) for k in infos[0]["rewards"]
+        }
+    return out

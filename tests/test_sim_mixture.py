@@ -1,0 +1,162 @@
+"""The mixture's traffic on the vector backend (bgap.sim.mixture): episodes draw their
+sources with the documented weights (chi-square), a drawn episode's drivers carry their
+class's parameters times their own factor (hand-computed from the presets), stock episodes
+carry highway-env's IDM, replayed environments play training scenes only, and the same seed
+gives the same episodes."""
+
+from __future__ import annotations
+
+from collections import Counter
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.stats import chisquare
+
+from bgap.common.errors import ConfigError
+from bgap.sim import core
+from bgap.sim.highway_params import IDM_DEFAULTS
+from bgap.sim.mixture import DrawnTraffic, MixtureHighway, member_sizes, table_name
+from bgap.sim.sb3 import SB3VecEnv
+from bgap.traffic.mixture import MixtureConfig
+from bgap.traffic.scenario import env_config
+from bgap.traffic.scenes import split_scenes
+from tests.conftest import make_cfg
+
+ROWS = 17
+
+
+def _config() -> dict:
+    return env_config(make_cfg("env=sparse", f"env.observed_vehicles={ROWS}", "env.duration=4"))
+
+
+def _table(folder) -> str:
+    """Six scenes of 30 s at 15 Hz on two lanes, three vehicles each at a steady 20-24 m/s,
+    written as the pipeline names its tables (``<name>/trajectories.parquet``)."""
+    t = np.arange(451) / 15.0
+    rows = [
+        pd.DataFrame(
+            {
+                "episode": scene,
+                "frame": np.arange(451),
+                "time": t,
+                "vehicle_id": vid,
+                "x": 30.0 * vid + (20.0 + vid) * t,
+                "y": 4.0 * (vid % 2),
+                "vx": 20.0 + vid,
+                "vy": 0.0,
+                "lane": vid % 2,
+                "label": "conservative",
+            }
+        )  # fmt: skip
+        for scene in range(6)
+        for vid in (1, 2, 3)
+    ]
+    path = folder / "sumo-idm-dense" / "trajectories.parquet"
+    path.parent.mkdir(parents=True)
+    pd.concat(rows, ignore_index=True).to_parquet(path)
+    return str(path)
+
+
+def test_episodes_draw_bgap_and_stock_with_their_weights():
+    """3,000 episodes, 100 of each of 30 environments: bgap against stock at 0.5 : 0.2
+    (the default weights, replay left out), chi-square at the 1% level."""
+    mixture = MixtureConfig(sources={"bgap": 0.5, "stock": 0.2, "replay": 0.0}, vehicles=[5])
+    env = DrawnTraffic({**_config(), "vehicles_count": 5}, 30, mixture)
+    env.reset(seed=0)
+    counts = Counter(d.source for d in env.drawn)
+    for _ in range(99):  # a reset, or an automatic one, spawns each env's next episode
+        env._spawn(np.arange(30))
+        counts.update(d.source for d in env.drawn)
+    n = sum(counts.values())
+    assert chisquare([counts["bgap"], counts["stock"]], [n * 5 / 7, n * 2 / 7]).pvalue > 0.01
+
+
+def test_a_drawn_episodes_drivers_carry_their_class_times_their_factor():
+    """Each vehicle's time gap, accelerations and MOBIL parameters are its preset class's
+    (Table I for ``paper``) times its drawn factor, its minimum gap likewise bumper to
+    bumper; stock episodes keep highway-env's IDM and label nobody aggressive."""
+    mixture = MixtureConfig(sources={"bgap": 1.0, "stock": 1.0, "replay": 0.0}, classes=["paper"])
+    env = DrawnTraffic({**_config(), "vehicles_count": 10}, 40, mixture)
+    env.reset(seed=3)
+    paper = {  # Table I (bgap/conf/behavior/paper.yaml): T, min gap, a, b, politeness, gain, b_safe
+        core.CONSERVATIVE: (1.5, 5.0, 3.0, 6.0, 0.5, 0.2, 3.0),
+        core.AGGRESSIVE: (1.2, 2.5, 6.0, 9.0, 0.0, 0.0, 9.0),
+    }
+    seen = set()
+    for b, drawn in enumerate(env.drawn):
+        labels = env.g[b, 1:, core.LABEL]
+        if drawn.source == "stock":
+            assert (labels != core.AGGRESSIVE).all()
+            columns = [core.P_T, core.P_A, core.P_B, core.P_POLITENESS, core.P_GAIN]
+            assert np.allclose(env.p[b, 1:, columns], IDM_DEFAULTS[columns][:, None])
+            seen.add("stock")
+            continue
+        assert (labels == core.AGGRESSIVE).sum() == round(drawn.mix * 10)
+        for i, factor in enumerate(drawn.scale):
+            t, gap, a, brake, polite, gain, b_safe = paper[int(labels[i])]
+            row = env.p[b, i + 1]
+            assert row[core.P_T] == pytest.approx(t * factor)
+            assert row[core.P_D0] == pytest.approx(gap * factor + 5.0)
+            assert row[core.P_A] == pytest.approx(a * factor)
+            assert row[core.P_B] == pytest.approx(brake * factor)
+            assert row[core.P_POLITENESS] == pytest.approx(polite * factor)
+            assert row[core.P_GAIN] == pytest.approx(gain * factor)
+            assert row[core.P_BSAFE] == pytest.approx(b_safe * factor)
+        seen.add("bgap")
+    assert seen == {"bgap", "stock"}
+
+
+def test_replayed_environments_play_training_scenes_only(tmp_path):
+    """The replay member's windows, over 600 resets, all come from the table's training
+    scenes (four of six), and every training scene is played."""
+    table = _table(tmp_path)
+    train, test = split_scenes("sumo-idm-dense", range(6))
+    assert table_name(table) == "sumo-idm-dense" and len(test) == 2
+    mixture = MixtureConfig(sources={"bgap": 0.0, "stock": 0.0, "replay": 1.0}, tables=[table])
+    env = MixtureHighway(_config(), 12, mixture, min_duration=4.0)
+    (member,) = env.members
+    assert member.training_scenes == train and member.test_scenes == test
+    scene_of = {track: s for (s, _), track in member._track_of.items()}
+    played = set()
+    env.reset(seed=0)
+    for _ in range(50):
+        member._spawn(np.arange(12))
+        tracks = member._rp[:, 1:, core.R_TRACK]
+        played |= {member.replay.scenes[scene_of[t]].number for t in tracks[tracks >= 0]}
+    assert played == set(train)
+
+
+def test_members_share_the_environments_and_step_as_one(tmp_path):
+    """The replay weight's share of the environments replays, the rest is shared among the
+    vehicle counts; one step of the whole equals each member's own step from the same
+    seeds; the SB3 adapter takes it."""
+    table = _table(tmp_path)
+    mixture = MixtureConfig(vehicles=[5, 10], tables=[table])
+    assert member_sizes(mixture, 20) == ([(5, 7), (10, 7)], [6])
+    env = MixtureHighway(_config(), 20, mixture, min_duration=4.0)
+    assert [m.num_envs for m in env.members] == [7, 7, 6]
+    obs, info = env.reset(seed=10)
+    assert obs.shape == (20, ROWS, 5) and info["speed"].shape == (20,)
+    actions = np.random.default_rng(0).integers(0, 5, 20)
+    whole = [env.step(actions) for _ in range(10)]
+    again = MixtureHighway(_config(), 20, mixture, min_duration=4.0)
+    again.reset(seed=10)
+    for step in whole:  # the same seed, the same episodes
+        obs, rewards, *_ = again.step(actions)
+        assert np.array_equal(obs, step[0]) and np.array_equal(rewards, step[1])
+    alone = MixtureHighway(_config(), 20, mixture, min_duration=4.0).members[1]
+    alone.reset(seed=list(range(17, 24)))
+    first = MixtureHighway(_config(), 20, mixture, min_duration=4.0)
+    first.reset(seed=10)
+    assert np.array_equal(first.step(actions)[0][7:14], alone.step(actions[7:14])[0])
+    venv = SB3VecEnv(env)
+    venv.reset()
+    for _ in range(12):  # episodes of 4 s end: terminal observations pass through
+        _, _, dones, infos = venv.step(np.full(20, 1))
+    assert all("terminal_observation" in i for i, d in zip(infos, dones, strict=True) if d)
+
+
+def test_a_replay_weight_without_tables_is_refused_in_one_line():
+    with pytest.raises(ConfigError, match="mixture.tables"):
+        MixtureHighway(_config(), 10, MixtureConfig())
