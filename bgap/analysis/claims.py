@@ -174,7 +174,12 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
         result = _test(claim, d)
         if result is not None:
             rows.append(_row(claim, arm, density, result) | {"family": family_of(arm, traffic)})
-    table = pd.DataFrame(rows)
+    return _adjusted(pd.DataFrame(rows))
+
+
+def _adjusted(table: pd.DataFrame) -> pd.DataFrame:
+    """Holm's correction within each claim family (its ``family`` column), each claim's
+    interval at its Holm level, and the verdicts and readings."""
     if table.empty:
         return table
     table["p_holm"] = np.nan
@@ -192,6 +197,31 @@ def claims(df: pd.DataFrame) -> pd.DataFrame:
     table["verdict"] = [_verdict(r) for r in table.itertuples()]
     table["reading"] = [_reading(r) for r in table.itertuples()]
     return table.drop(columns="test")
+
+
+def transfer_claims(df: pd.DataFrame, mixture: dict, stock: dict) -> pd.DataFrame:
+    """The generalisation study's transfer claims (not in the paper): in each replayed
+    table, reactive, policies trained on the mixture (``mixture``: a selection such as
+    ``{"arm": "gen-pure"}``) collide in fewer episodes than the same learner and recipe
+    trained on stock traffic alone (``stock``). Unrelated trainings on the same windows;
+    one exploratory family of their own, Holm within it, so no other family's verdict
+    moves with them."""
+    replayed = df[is_replay(df.traffic) & df.traffic.astype(str).str.endswith("/reactive")]
+    rows = []
+    for (traffic, density), d in replayed.groupby(["traffic", "density"], sort=True):
+        table = traffic.split("/")[1]
+        claim = Claim(f"mixture training collides less than stock-only training in observed "
+                      f"traffic ({table}, reactive)", "transfer", "collision_pct", mixture,
+                      stock, -1, "unpaired", "not in the paper")  # fmt: skip
+        result = _test(claim, d)
+        if result is not None:
+            arm = mixture.get("arm", "")
+            rows.append(_row(claim, arm, density, result) | {"family": TRANSFER})
+    return _adjusted(pd.DataFrame(rows))
+
+
+TRANSFER = "exploratory: transfer"
+"""The transfer claims' family (:func:`transfer_claims`)."""
 
 
 MIN_SEEDS = 3
