@@ -197,3 +197,35 @@ def test_bring_back_records_the_clones_lock_entry_and_refuses_an_unfinished_stag
     assert moved.returncode != 0
     assert "recorded" not in moved.stdout and "tools/relock.py" in moved.stderr
     assert (here / "dvc.lock").read_text() == lock
+
+
+def test_relock_compares_a_moved_output_at_its_new_place(tmp_path):
+    """``tools/relock.py relock --moved OLD=NEW``: a preset the base wrote inside the package
+    and the head wrote under results/presets is the same output when its bytes are; changed
+    bytes, a file only one side wrote, or a move not given are differences."""
+    from tools.relock import differing, moved_to
+
+    moves = {"bgap/conf/rule": "results/presets/rule"}
+    assert moved_to(Path("bgap/conf/rule/dense.yaml"), moves) == Path(
+        "results/presets/rule/dense.yaml"
+    )
+    assert moved_to(Path("bgap/conf/rules.yaml"), moves) == Path("bgap/conf/rules.yaml")
+    trees = {"base": tmp_path / "base", "head": tmp_path / "head"}
+    for tree, folder in (
+        (trees["base"], "bgap/conf/rule"),
+        (trees["head"], "results/presets/rule"),
+    ):
+        (tree / folder).mkdir(parents=True)
+        (tree / folder / "dense.yaml").write_text("time_gap: 1.2\n")
+        (tree / "report.csv").write_text("a,b\n1,2\n")
+    base = [Path("bgap/conf/rule/dense.yaml"), Path("report.csv")]
+    head = [Path("results/presets/rule/dense.yaml"), Path("report.csv")]
+    assert differing(trees, base, head, moves) == []
+    assert differing(trees, base, head) == [
+        "bgap/conf/rule/dense.yaml",
+        "results/presets/rule/dense.yaml",
+    ]
+    (trees["head"] / "results/presets/rule/dense.yaml").write_text("time_gap: 1.3\n")
+    assert differing(trees, base, head, moves) == ["results/presets/rule/dense.yaml"]
+    (trees["head"] / "extra.txt").write_text("new\n")
+    assert "extra.txt" in differing(trees, base, [*head, Path("extra.txt")], moves)

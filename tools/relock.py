@@ -478,12 +478,64 @@ def _record_lock(repo: Any, stage: str) -> None:
             found.dvcfile.dump(found, update_pipeline=False)
 
 
+def moved_to(path: Path, moved: dict[str, str]) -> Path:
+    """``path`` (relative to a tree) where the moves ``moved`` (old -> new: a file, or a
+    folder and everything in it) put it; unmoved paths are returned as they are."""
+    text = path.as_posix()
+    for old, new in moved.items():
+        old = old.rstrip("/")
+        if text == old or text.startswith(old + "/"):
+            return Path(new.rstrip("/") + text[len(old) :])
+    return path
+
+
+def differing(
+    trees: dict[str, Path],
+    base_files: list[Path],
+    head_files: list[Path],
+    moved: dict | None = None,
+) -> list[str]:
+    """The files of one stage that differ between the rehearsals in ``trees`` (``base``,
+    ``head``, and ``again``: the base rehearsed once more, for stages that do not reproduce
+    themselves, whose files that differ between its two runs are not compared): a file
+    only one side wrote, or whose bytes differ (TensorBoard events: whose scalars differ).
+    Each base file is compared at the path ``moved`` gives it in the head; the files are
+    named by their head path."""
+    moved = moved or {}
+    base = {moved_to(Path(f), moved): Path(f) for f in base_files}  # head path -> base path
+    files = sorted(set(base) | {Path(f) for f in head_files})
+    events = {f.parent for f in files if f.name.startswith(TB_EVENTS)}
+    files = [f for f in files if not f.name.startswith(TB_EVENTS)]
+    again = trees.get("again")
+    if again is not None:  # a file the base's two runs wrote differently is not compared
+        files = [
+            f
+            for f in files
+            if f not in base
+            or ((again / base[f]).is_file() and _same(trees["base"] / base[f], again / base[f]))
+        ]
+    out = [
+        str(f)
+        for f in files
+        if f not in base
+        or not (trees["base"] / base[f]).is_file()
+        or not (trees["head"] / f).is_file()
+        or not _same(trees["base"] / base[f], trees["head"] / f)
+    ]
+    for d in sorted(events):
+        old = next((b.parent for h, b in base.items() if h.parent == d), d)
+        if _scalars(trees["base"] / old) != _scalars(trees["head"] / d):
+            out.append(str(d / TB_EVENTS))
+    return out
+
+
 def relock(
     stages: list[str],
     base: str = "HEAD",
     work: Path | None = None,
     root: Path = ROOT,
     unreproducible: bool = False,
+    moved: dict[str, str] | None = None,
 ) -> dict[str, list]:
     """Record the new lock of ``stages`` whose code moved without changing what it computes.
 
@@ -498,6 +550,10 @@ def relock(
     draws its trials unseeded, so that parallel workers never repeat one), the commit
     ``base`` is rehearsed twice; files that already differ between those two runs are not
     compared, every other file must still be identical.
+
+    ``moved``: paths the change moved (old -> new, a file or a folder and everything in it,
+    e.g. presets moved out of the package): a file the base wrote at an old path is
+    compared with the head's at the new one (:func:`differing`).
     """
 
     # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
@@ -524,21 +580,8 @@ def relock(
     with Repo(str(trees["head"])) as repo:
         expanded = [s.addressing for name in stages for s in repo.stage.collect(name)]
     for stage in expanded:
-        files = sorted(set(_outputs(trees["base"], stage)) | set(_outputs(trees["head"], stage)))
-        events = {f.parent for f in files if f.name.startswith(TB_EVENTS)}
-        files = [f for f in files if not f.name.startswith(TB_EVENTS)]
-        if unreproducible:  # what differs between two runs of the same code says nothing
-            files = [f for f in files if _same(trees["base"] / f, trees["again"] / f)]
-        differs[stage] = [
-            str(f)
-            for f in files
-            if not all((t / f).is_file() for t in trees.values())
-            or not _same(trees["base"] / f, trees["head"] / f)
-        ] + [
-            str(d / TB_EVENTS)
-            for d in sorted(events)
-            if _scalars(trees["base"] / d) != _scalars(trees["head"] / d)
-        ]
+        base_files = _outputs(trees["base"], stage)
+        differs[stage] = differing(trees, base_files, _outputs(trees["head"], stage), moved)
     changed = [
         f
         for f in _code_files(root, stages)
@@ -572,11 +615,24 @@ def main(argv: list[str] | None = None) -> None:
         action="store_true",
         help="rehearse the base twice and compare only what reproduces (the recipe's sweep)",
     )
+    lock.add_argument(
+        "--moved",
+        action="append",
+        default=[],
+        metavar="OLD=NEW",
+        help="a path the change moved (a file or a folder), compared at its new place",
+    )
     args = parser.parse_args(argv)
     if args.command == "relock":
+        moved = dict(m.split("=", 1) for m in args.moved if "=" in m)
+        if len(moved) != len(args.moved):
+            bad = next(m for m in args.moved if "=" not in m)
+            parser.error(f"--moved {bad!r} must be OLD=NEW (a path before and after the move)")
         differs = run(
             "tools/relock.py",
-            lambda: relock(args.stages, args.base, args.work, unreproducible=args.unreproducible),
+            lambda: relock(
+                args.stages, args.base, args.work, unreproducible=args.unreproducible, moved=moved
+            ),
             "no lock was rewritten; rerun with the same --work to reuse finished rehearsals",
         )
         bad = {s: f for s, f in differs.items() if f}
