@@ -16,7 +16,7 @@ from scipy.stats import chisquare
 from bgap.common.errors import ConfigError
 from bgap.sim import core
 from bgap.sim.highway_params import IDM_DEFAULTS
-from bgap.sim.mixture import DrawnTraffic, MixtureHighway, member_sizes, table_name
+from bgap.sim.mixture import DrawnTraffic, MixtureHighway, SplitReplay, member_sizes, table_name
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.traffic.mixture import MixtureConfig
 from bgap.traffic.scenario import env_config
@@ -125,6 +125,24 @@ def test_replayed_environments_play_training_scenes_only(tmp_path):
         tracks = member._rp[:, 1:, core.R_TRACK]
         played |= {member.replay.scenes[scene_of[t]].number for t in tracks[tracks >= 0]}
     assert played == set(train)
+
+
+def test_a_test_side_replay_plays_the_held_out_scenes_only(tmp_path):
+    """The other side of the split, in log mode as the study's evaluation may play it: 600
+    windows, all from the two held-out scenes, both played."""
+    table = _table(tmp_path)
+    _, test = split_scenes("sumo-idm-dense", range(6))
+    env = SplitReplay(_config(), 12, table, 4.0, side="test", mode="log")
+    scene_of = {track: s for (s, _), track in env._track_of.items()}
+    env.reset(seed=5)
+    played = set()
+    for _ in range(50):
+        env._spawn(np.arange(12))
+        tracks = env._rp[:, 1:, core.R_TRACK]
+        played |= {env.replay.scenes[scene_of[t]].number for t in tracks[tracks >= 0]}
+    assert played == set(test)
+    with pytest.raises(ConfigError, match="side='held' is invalid"):
+        SplitReplay(_config(), 2, table, 4.0, side="held")
 
 
 def test_members_share_the_environments_and_step_as_one(tmp_path):

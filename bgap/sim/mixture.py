@@ -50,6 +50,8 @@ VEHICLE_LENGTH = 5.0
 SCALED = (core.P_T, core.P_A, core.P_B, core.P_POLITENESS, core.P_GAIN, core.P_BSAFE)
 """The IDM and MOBIL parameter columns a vehicle's factor multiplies, beside the bumper gap
 (DELTA keeps highway-env's own per-vehicle draw; v0 keeps its class's spread)."""
+SIDES = ("train", "test")
+"""The two sides of a replayed table's scenes (:class:`SplitReplay`)."""
 _STREAM = 0x6D6978
 """Mixed into an env's seed for its own stream of traffic draws (:func:`draw_stream`)."""
 
@@ -165,17 +167,27 @@ def _behavior(name: str) -> dict[str, Any]:
     }
 
 
-class TrainingScenes(VectorHighway):
-    """A VectorHighway replaying ``table`` reactively, its windows drawn from the table's
-    training scenes only."""
+class SplitReplay(VectorHighway):
+    """A VectorHighway replaying ``table``, its windows drawn from one side of the table's
+    scenes (:func:`bgap.traffic.scenes.split_scenes`): ``train`` (the mixture's replay
+    source) or ``test`` (the held-out scenes a generalisation test plays)."""
 
-    def __init__(self, config: dict[str, Any], num_envs: int, table: str, min_duration: float):
-        traffic = {"source": "replay", "table": str(table), "mode": "reactive"}
+    def __init__(
+        self,
+        config: dict[str, Any],
+        num_envs: int,
+        table: str,
+        min_duration: float,
+        side: str = "train",
+        mode: str = "reactive",
+    ) -> None:
+        check(side in SIDES, "side", side, f"one of {SIDES}")
+        traffic = {"source": "replay", "table": str(table), "mode": mode}
         traffic |= {"min_duration": min_duration, "vehicle": None, "start": None, "scene": None}
         super().__init__({**config, "traffic": traffic}, num_envs)
         numbers = [scene.number for scene in self.replay.scenes]
         self.training_scenes, self.test_scenes = split_scenes(table_name(table), numbers)
-        kept = set(self.training_scenes)
+        kept = set(self.training_scenes if side == "train" else self.test_scenes)
         replay = copy.copy(self.replay)  # the loaded table is shared: filter a copy
         scenes = replay.scenes
         replay.candidates = [(s, v) for s, v in replay.candidates if scenes[s].number in kept]
@@ -183,7 +195,7 @@ class TrainingScenes(VectorHighway):
             bool(replay.candidates),
             "mixture.tables",
             str(table),
-            "a table with training scenes (at least one complete block of three)",
+            f"a table with {side} scenes (at least one complete block of three)",
         )
         self.replay = replay
 
@@ -240,7 +252,7 @@ class MixtureHighway(gym.vector.VectorEnv):
             DrawnTraffic({**base, "vehicles_count": count}, n, mixture) for count, n in groups
         ]
         self.members += [
-            TrainingScenes(base, n, table, min_duration)
+            SplitReplay(base, n, table, min_duration)
             for table, n in zip(mixture.tables, shares, strict=True)
             if n
         ]
