@@ -11,6 +11,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from bgap.analysis.paper import HEADLINE
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
@@ -229,3 +231,78 @@ def test_relock_compares_a_moved_output_at_its_new_place(tmp_path):
     assert differing(trees, base, head, moves) == ["results/presets/rule/dense.yaml"]
     (trees["head"] / "extra.txt").write_text("new\n")
     assert "extra.txt" in differing(trees, base, [*head, Path("extra.txt")], moves)
+
+
+def _study(root: Path, chosen: list[int], lane_changes: float, verdict: str) -> Path:
+    """A study's committed results in miniature: the main arm's two sparse behaviour-rich
+    policies kept at ``chosen`` of 3,000 episodes, their episodes, a sparse row against the
+    rule and the headline claim."""
+    folder = root / "results/evaluation/main/paper"
+    folder.mkdir(parents=True)
+    names = [f"main/sparse/sparse-behavior_rich-s{s}" for s in range(len(chosen))]
+    pd.DataFrame(
+        {
+            "policy": names,
+            "model": "best_model.zip",
+            "chosen_episodes": chosen,
+            "validated_episodes": 3000,
+        }
+    ).to_csv(folder / "models.csv", index=False)
+    pd.DataFrame(
+        {
+            "policy": names,
+            "mix": 0.5,
+            "density": "sparse",
+            "radius": 180.0,
+            "seed": 100000,
+            "crashed": False,
+            "lane_changes": lane_changes,
+        }
+    ).to_parquet(folder / "episodes.parquet")
+    pd.DataFrame(
+        [
+            {
+                "density": "sparse",
+                "arm": "main",
+                "family": "behavior_rich",
+                "yardstick": "rule",
+                "per_100km": 2.9,
+                "yard_per_100km": 0.38,
+                "verdict": verdict,
+            }
+        ]
+    ).to_csv(root / "results/yardsticks.csv", index=False)
+    pd.DataFrame(
+        [
+            {
+                "claim": HEADLINE,
+                "arm": "main",
+                "n": 5,
+                "difference": 4.4,
+                "lo": 1.5,
+                "hi": 7.3,
+                "verdict": verdict,
+            }
+        ]
+    ).to_csv(root / "results/claims.csv", index=False)
+    return root
+
+
+def test_before_after_reads_each_sides_checkpoints_lane_changes_and_verdicts(tmp_path):
+    """Before: checkpoints at episodes 300 and 2,400 of 3,000 (one in the first fifth,
+    median 45%), no lane change; after: 1,500 and 2,700 (none early, median 70%), 2.5 lane
+    changes per episode; the verdicts as each side's tables say."""
+    from tools.before_after import markdown, side
+
+    before = side(_study(tmp_path / "b", [300, 2400], 0.0, "contradicted"))
+    after = side(_study(tmp_path / "a", [1500, 2700], 2.5, "not significant"))
+    text = markdown(before, after)
+    assert "| main | sparse | behavior_rich | 1 of 2 | 0 of 2 | 45% | 70% | 0.00 | 2.50 |" in text
+    assert (
+        "| main | behavior_rich | 2.90 / 0.38, contradicted | 2.90 / 0.38, not significant |"
+        in text
+    )
+    assert (
+        "| main | 5 | +4.4 [+1.5, +7.3], contradicted | +4.4 [+1.5, +7.3], not significant |"
+        in text
+    )
