@@ -178,3 +178,23 @@ def test_members_share_the_environments_and_step_as_one(tmp_path):
 def test_a_replay_weight_without_tables_is_refused_in_one_line():
     with pytest.raises(ConfigError, match="mixture.tables"):
         MixtureHighway(_config(), 10, MixtureConfig())
+
+
+def test_a_saved_state_resumes_the_same_episodes(tmp_path):
+    """Ten steps after a state is saved, in the same environment and in a new one the state
+    was loaded into: the same observations and rewards, automatic resets (each env's next
+    draw) included."""
+    mixture = MixtureConfig(vehicles=[5, 10], tables=[_table(tmp_path)])
+    env = MixtureHighway(_config(), 14, mixture, min_duration=4.0)
+    env.reset(seed=7)
+    rng = np.random.default_rng(1)
+    for _ in range(3):
+        env.step(rng.integers(0, 5, 14))
+    state = env.state_dict()
+    actions = [rng.integers(0, 5, 14) for _ in range(10)]  # 4 s episodes: resets within
+    ahead = [env.step(a)[:2] for a in actions]
+    again = MixtureHighway(_config(), 14, mixture, min_duration=4.0)
+    again.load_state_dict(state)
+    for a, (obs, rewards) in zip(actions, ahead, strict=True):
+        o, r, *_ = again.step(a)
+        assert np.array_equal(o, obs) and np.array_equal(r, rewards)

@@ -112,6 +112,22 @@ class DrawnTraffic(VectorHighway):
             self._draw_rngs = [draw_stream(s) for s in seeds]
         return super().reset(seed=seeds, options=options)
 
+    def state_dict(self, envs: Sequence[int] | None = None) -> dict[str, Any]:
+        """VectorHighway's state, with each env's traffic-draw stream and current draw."""
+        idx = list(range(self.num_envs)) if envs is None else list(envs)
+        state = super().state_dict(envs)
+        state["draw_rngs"] = [self._draw_rngs[b].bit_generator.state for b in idx]
+        state["drawn"] = [self.drawn[b] for b in idx]
+        return state
+
+    def load_state_dict(self, state: dict[str, Any], envs: Sequence[int] | None = None) -> None:
+        idx = list(range(self.num_envs)) if envs is None else list(envs)
+        super().load_state_dict(state, envs)
+        for b, bit_state, drawn in zip(idx, state["draw_rngs"], state["drawn"], strict=True):
+            self._draw_rngs[b] = np.random.default_rng()
+            self._draw_rngs[b].bit_generator.state = bit_state
+            self.drawn[b] = drawn
+
     def _spawn(self, envs: np.ndarray) -> None:
         """Each env's episode drawn, then the scenes spawned with the drawn classes and shares
         (stock traffic: no vehicle labelled aggressive), one compiled call per class table,
@@ -289,6 +305,25 @@ class MixtureHighway(gym.vector.VectorEnv):
             np.concatenate([p[k] for p in parts]) for k in range(4)
         )
         return obs, rewards, terminated, truncated, _merge([p[4] for p in parts])
+
+    def state_dict(self) -> dict[str, Any]:
+        """Every member's state (:meth:`VectorHighway.state_dict`), to resume exactly."""
+        return {"members": [m.state_dict() for m in self.members]}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """A :meth:`state_dict` put back (the same mixture and number of environments)."""
+        check(
+            len(state["members"]) == len(self.members),
+            "state",
+            f"{len(state['members'])} members",
+            f"a state of this mixture's {len(self.members)} member batches",
+        )
+        for m, part in zip(self.members, state["members"], strict=True):
+            m.load_state_dict(part)
+
+    def observations(self) -> np.ndarray:
+        """Every env's current observation (after :meth:`load_state_dict`)."""
+        return np.concatenate([m.observations() for m in self.members])
 
     def close(self, **kwargs: Any) -> None:
         for m in self.members:
