@@ -120,6 +120,20 @@ def _joined(before: pd.DataFrame, after: pd.DataFrame, key: list[str]) -> pd.Dat
     return b.merge(a, on=key, how="outer", suffixes=("_before", "_after")).sort_values(key)
 
 
+def _section(title: str, table: pd.DataFrame, key: list[str], cell) -> list[str]:
+    """A before/after table: its bold title, then per row its ``key`` and ``cell(row, side)``
+    for each side."""
+    lines = [
+        f"\n**{title}\n",
+        f"| {' | '.join(key)} | before | after |",
+        "|---" * (len(key) + 2) + "|",
+    ]
+    for r in table.to_dict("records"):
+        keys = " | ".join(str(r[k]) for k in key)
+        lines.append(f"| {keys} | {cell(r, 'before')} | {cell(r, 'after')} |")
+    return lines
+
+
 def markdown(before: dict, after: dict) -> str:
     """The three comparisons as Markdown tables (module docstring)."""
     key = ["arm", "density", "family"]
@@ -144,33 +158,24 @@ def markdown(before: dict, after: dict) -> str:
             f"{_cell(r.get('lane_changes_before'), '.2f')} | "
             f"{_cell(r.get('lane_changes_after'), '.2f')} |"
         )
-    sparse = _joined(before["sparse"], after["sparse"], ["arm", "family"])
-    lines += [
-        "\n**Sparse, against the rule-based ego** (collisions per 100 km: policy / rule, "
-        "verdict)\n",
-        "| arm | family | before | after |",
-        "|---|---|---|---|",
-    ]
-    for r in sparse.to_dict("records"):
-        cells = [
+    lines += _section(
+        "Sparse, against the rule-based ego** (collisions per 100 km: policy / rule, verdict)",
+        _joined(before["sparse"], after["sparse"], ["arm", "family"]),
+        ["arm", "family"],
+        lambda r, s: (
             f"{_cell(r.get(f'per_100km_{s}'), '.2f')} / "
             f"{_cell(r.get(f'yard_per_100km_{s}'), '.2f')}, {_verdict(r, s)}"
-            for s in ("before", "after")
-        ]
-        lines.append(f"| {r['arm']} | {r['family']} | {cells[0]} | {cells[1]} |")
-    head = _joined(before["headline"], after["headline"], ["arm", "n"])
-    lines += [
-        f"\n**The headline claim** ({HEADLINE}: difference in % of episodes [95% CI], verdict)\n",
-        "| arm | n | before | after |",
-        "|---|---|---|---|",
-    ]
-    for r in head.to_dict("records"):
-        cells = [
+        ),
+    )
+    lines += _section(
+        f"The headline claim** ({HEADLINE}: difference in % of episodes [95% CI], verdict)",
+        _joined(before["headline"], after["headline"], ["arm", "n"]),
+        ["arm", "n"],
+        lambda r, s: (
             f"{_cell(r.get(f'difference_{s}'), '+.1f')} [{_cell(r.get(f'lo_{s}'), '+.1f')}, "
             f"{_cell(r.get(f'hi_{s}'), '+.1f')}], {_verdict(r, s)}"
-            for s in ("before", "after")
-        ]
-        lines.append(f"| {r['arm']} | {r['n']} | {cells[0]} | {cells[1]} |")
+        ),
+    )
     return "\n".join(lines) + "\n"
 
 
