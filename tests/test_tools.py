@@ -167,6 +167,8 @@ def test_bring_back_records_the_clones_lock_entry_and_refuses_an_unfinished_stag
         "      cmd: mkdir -p zoo && cp runs/${item}/model zoo/${item}\n"
         "      deps:\n        - runs/${item}\n      outs:\n        - zoo/${item}:\n"
         "            cache: false\n"
+        "  evaluate:\n    cmd: mkdir -p results && cp zoo/a results/a\n"
+        "    deps: [zoo/a]\n    outs:\n      - results/a:\n          cache: false\n"
     )
     sh(here, "git", "init", "-q")
     sh(here, "dvc", "init", "-q")
@@ -186,6 +188,16 @@ def test_bring_back_records_the_clones_lock_entry_and_refuses_an_unfinished_stag
     assert (here / "zoo/a").read_text() == "7\n7\n"
     status = sh(here, "dvc", "status", "--json", "train@a", "zoo@a")
     assert status.stdout.strip() == "{}", status.stdout
+
+    # an evaluation stage comes back alone: its outputs and lock, no zoo stage
+    assert sh(clone, "dvc", "repro", "--single-item", "zoo@a").returncode == 0
+    assert sh(clone, "dvc", "repro", "--single-item", "evaluate").returncode == 0
+    evaluated = sh(here, "bash", "tools/bring_back.sh", str(clone), "evaluate")
+    assert evaluated.returncode == 0, evaluated.stderr
+    assert evaluated.stdout.strip().endswith(
+        "brought back evaluate (recorded: the clone's lock entry exactly)"
+    )
+    assert (here / "results/a").read_text() == "7\n7\n"
 
     refused = sh(here, "bash", "tools/bring_back.sh", str(clone), "train@b")
     assert refused.returncode == 2

@@ -1,13 +1,15 @@
 #!/usr/bin/env bash
-# Bring training stages that a clone of this repository finished (tools/stages.sh running in
-# it) back into this checkout: each stage's outputs copied from the clone; its lock recorded
-# as the clone's entry where this checkout computes the same one (the same command, code and
+# Bring stages that a clone of this repository finished (tools/stages.sh running in it) back
+# into this checkout: each stage's outputs copied from the clone; its lock recorded as the
+# clone's entry where this checkout computes the same one (the same command, code and
 # parameters), otherwise by a relock against the clone's commit, which records it only where
-# both commits compute the same outputs at the rehearsal budget; and its zoo stage run here.
-# Then commit dvc.lock and zoo/, and remove the stages from RERUNNING in
-# tests/test_reproducible.py.
+# both commits compute the same outputs at the rehearsal budget; and, for a training stage
+# (train@, train_learner@), its zoo stage run here. Then commit dvc.lock, zoo/ and the
+# git-kept outputs (an evaluation's results/evaluation/<arm>), and remove the stages from
+# RERUNNING in tests/test_reproducible.py.
 #
 #   tools/bring_back.sh CLONE STAGE [STAGE ...]     e.g. /work/retrain train@main-dense
+#   tools/bring_back.sh /work/retrain evaluate@main
 set -euo pipefail
 clone=$(cd "$1" && pwd)
 shift
@@ -57,6 +59,11 @@ EOF
         how="relocked against $base"
     fi
     rm -f "$before"
-    dvc repro --single-item "zoo@${stage#*@}"
-    echo "brought back $stage and zoo@${stage#*@} ($how)"
+    case "$stage" in
+        train@* | train_learner@*)
+            dvc repro --single-item "zoo@${stage#*@}"
+            echo "brought back $stage and zoo@${stage#*@} ($how)"
+            ;;
+        *) echo "brought back $stage ($how)" ;;
+    esac
 done
