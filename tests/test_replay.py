@@ -232,3 +232,52 @@ def test_bad_replay_grids_fail_in_one_line(tmp_path, overrides, message):
     with pytest.raises(ConfigError, match=message) as err:
         validate(compose("evaluate", [o.format(table=table) for o in overrides]))
     assert "\n" not in str(err.value)
+
+
+def _scenes_table(folder) -> str:
+    """Six scenes of 30 s on two lanes, two vehicles each, named as the pipeline names a
+    table (``<name>/trajectories.parquet``, whose folder names its split)."""
+    t = np.arange(451) / 15.0
+    rows = [
+        pd.DataFrame(
+            {
+                "episode": scene,
+                "frame": np.arange(451),
+                "time": t,
+                "vehicle_id": vid,
+                "x": 40.0 * vid + 20.0 * t,
+                "y": 4.0 * (vid % 2),
+                "vx": 20.0,
+                "vy": 0.0,
+                "lane": vid % 2,
+                "label": "conservative",
+            }
+        )  # fmt: skip
+        for scene in range(6)
+        for vid in (1, 2)
+    ]
+    path = folder / "sumo-idm-dense" / "trajectories.parquet"
+    path.parent.mkdir(parents=True)
+    pd.concat(rows, ignore_index=True).to_parquet(path)
+    return str(path)
+
+
+@pytest.mark.parametrize("backend", ["highway", "vector"])
+def test_traffic_scenes_replays_one_side_of_the_split_on_both_backends(tmp_path, backend):
+    """``traffic.scenes=test`` draws every window from the table's held-out scenes and
+    ``train`` from the others, on both backends; ``all`` (the default) from all six."""
+    from bgap.sim.simulators import make_vector_env
+    from bgap.traffic.scenes import split_scenes
+
+    train, test = split_scenes("sumo-idm-dense", range(6))
+    config = env_config(make_cfg("env=sparse", "env.duration=4"))
+    for side, want in (("test", test), ("train", train), ("all", range(6))):
+        settings = _replaying(config, _scenes_table(tmp_path / side), min_duration=4.0)
+        settings["traffic"] |= {"scenes": side} if side != "all" else {}
+        venv = make_vector_env(settings, 2, backend)
+        inner = venv.env.envs[0].unwrapped if backend == "highway" else venv
+        replay = inner.replay
+        drawn = {replay.scenes[s].number for s, _ in replay.candidates}
+        assert drawn == set(want), side
+        venv.reset(seed=0)
+        venv.close()

@@ -16,7 +16,8 @@ from scipy.stats import chisquare
 from bgap.common.errors import ConfigError
 from bgap.sim import core
 from bgap.sim.highway_params import IDM_DEFAULTS
-from bgap.sim.mixture import DrawnTraffic, MixtureHighway, SplitReplay, member_sizes, table_name
+from bgap.sim.mixture import DrawnTraffic, MixtureHighway, SplitReplay, member_sizes
+from bgap.traffic.scenes import table_name
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.traffic.mixture import MixtureConfig
 from bgap.traffic.scenario import env_config

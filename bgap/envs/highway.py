@@ -82,7 +82,10 @@ class BehaviorHighwayEnv(HighwayEnv):
         traffic = self.config.get("traffic") or {}
         if traffic.get("source") == "replay":  # the road takes the table's lanes
             self.replay = load_replay(
-                traffic["table"], self.config["simulation_frequency"], traffic["min_duration"]
+                traffic["table"],
+                self.config["simulation_frequency"],
+                traffic["min_duration"],
+                traffic.get("scenes", "all"),
             )
             self.config["lanes_count"] = self.replay.lanes
         else:  # checked once: the count holds for every episode

@@ -63,7 +63,7 @@ def upgrade(stored: dict[str, Any], current: dict[str, Any]) -> dict[str, Any]:
 def as_before(settings: dict[str, Any]) -> dict[str, Any]:
     """A config's ``settings`` (``asdict``) without what was added later at the value every
     earlier config had (the ``agent`` settings of :data:`ADDED_WITH_ALGOS`, simulated
-    ``traffic``), for the names hashed from them: folders and studies named before keep
+    ``traffic``, a replay's ``scenes`` at ``all``), for the names hashed from them: folders and studies named before keep
     their names."""
     settings = dict(settings)
     if isinstance(settings.get("agent"), dict):
@@ -72,6 +72,9 @@ def as_before(settings: dict[str, Any]) -> dict[str, Any]:
             for k, v in settings["agent"].items()
             if k not in ADDED_WITH_ALGOS or ADDED_WITH_ALGOS[k] != v
         }
-    if (settings.get("traffic") or {}).get("source", "simulated") == "simulated":
+    traffic = settings.get("traffic") or {}
+    if traffic.get("source", "simulated") == "simulated":
         settings.pop("traffic", None)
+    elif traffic.get("scenes", "all") == "all":  # every scene: as before the split existed
+        settings["traffic"] = {k: v for k, v in traffic.items() if k != "scenes"}
     return settings

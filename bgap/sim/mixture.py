@@ -26,10 +26,8 @@ policy reads them all.
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Sequence
 from dataclasses import asdict, replace
-from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -43,7 +41,7 @@ from bgap.sim import core
 from bgap.sim.vector import _PCG64, VectorHighway
 from bgap.traffic.behaviors import BehaviorConfig, count_aggressive
 from bgap.traffic.mixture import EpisodeTraffic, MixtureConfig, draw, vehicle_groups
-from bgap.traffic.scenes import split_scenes
+from bgap.traffic.scenes import split_scenes, table_name
 
 VEHICLE_LENGTH = 5.0
 """highway-env's Vehicle.LENGTH: a DISTANCE_WANTED column holds the bumper gap plus it."""
@@ -60,13 +58,6 @@ def draw_stream(seed: int) -> np.random.Generator:
     """The stream of an env seeded ``seed`` that draws its episodes' traffic: its own, so the
     scene draws are the scene stream's whatever the mixture draws."""
     return np.random.default_rng([_STREAM, int(seed)])
-
-
-def table_name(table: str | Path) -> str:
-    """The name a table's scenes are split by: its folder's for the pipeline's
-    ``<name>/trajectories.parquet``, else the file's stem."""
-    path = Path(table)
-    return path.parent.name if path.stem == "trajectories" else path.stem
 
 
 def scale_parameters(p: np.ndarray, factors: np.ndarray) -> None:
@@ -185,8 +176,8 @@ def _behavior(name: str) -> dict[str, Any]:
 
 class SplitReplay(VectorHighway):
     """A VectorHighway replaying ``table``, its windows drawn from one side of the table's
-    scenes (:func:`bgap.traffic.scenes.split_scenes`): ``train`` (the mixture's replay
-    source) or ``test`` (the held-out scenes a generalisation test plays)."""
+    scenes (``traffic.scenes``, :func:`bgap.traffic.scenes.split_scenes`): ``train`` (the
+    mixture's replay source) or ``test`` (the held-out scenes a generalisation test plays)."""
 
     def __init__(
         self,
@@ -198,22 +189,11 @@ class SplitReplay(VectorHighway):
         mode: str = "reactive",
     ) -> None:
         check(side in SIDES, "side", side, f"one of {SIDES}")
-        traffic = {"source": "replay", "table": str(table), "mode": mode}
+        traffic = {"source": "replay", "table": str(table), "mode": mode, "scenes": side}
         traffic |= {"min_duration": min_duration, "vehicle": None, "start": None, "scene": None}
         super().__init__({**config, "traffic": traffic}, num_envs)
         numbers = [scene.number for scene in self.replay.scenes]
         self.training_scenes, self.test_scenes = split_scenes(table_name(table), numbers)
-        kept = set(self.training_scenes if side == "train" else self.test_scenes)
-        replay = copy.copy(self.replay)  # the loaded table is shared: filter a copy
-        scenes = replay.scenes
-        replay.candidates = [(s, v) for s, v in replay.candidates if scenes[s].number in kept]
-        check(
-            bool(replay.candidates),
-            "mixture.tables",
-            str(table),
-            f"a table with {side} scenes (at least one complete block of three)",
-        )
-        self.replay = replay
 
     def reset(self, *, seed: Any = None, options: dict | None = None):
         return super().reset(seed=_seeds(seed, self.num_envs), options=options)

@@ -114,7 +114,10 @@ class VectorHighway(gym.vector.VectorEnv):
                     "without recording (the table is the recording)"
                 )
             self.replay = load_replay(
-                self.traffic["table"], cfg["simulation_frequency"], self.traffic["min_duration"]
+                self.traffic["table"],
+                cfg["simulation_frequency"],
+                self.traffic["min_duration"],
+                self.traffic.get("scenes", "all"),
             )
             cfg["lanes_count"] = self.replay.lanes
             self._longest = int(round(float(cfg["duration"]) * cfg["simulation_frequency"]))

@@ -23,6 +23,7 @@ the candidates, then its start) so every policy meets the same windows.
 
 from __future__ import annotations
 
+import copy
 import functools
 import re
 from dataclasses import dataclass, field
@@ -36,9 +37,13 @@ from bgap.common.errors import TrajectoryError, check
 from bgap.common.tables import load_trajectories
 from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, LABEL_NAMES
 from bgap.traffic.road import LANE_WIDTH
+from bgap.traffic.scenes import split_scenes, table_name
 
 SOURCES = ("simulated", "replay")
 MODES = ("log", "reactive")
+SIDES = ("all", "train", "test")
+"""Which of a table's scenes are replayed: all, or one side of the split that holds a third
+out for testing (:mod:`bgap.traffic.scenes`)."""
 MAX_JUMP_X, MAX_JUMP_Y = 20.0, LANE_WIDTH
 """A recorded vehicle moving more than these [m] between two samples is a broken track."""
 
@@ -65,10 +70,14 @@ class TrafficConfig:
     """``replay``: the window's start [s] after the scene's first sample; null: drawn."""
     scene: Optional[int] = None
     """``replay``: the scene (``episode`` column); null: drawn with the vehicle."""
+    scenes: str = "all"
+    """``replay``: the scenes windows are drawn from: ``all``, or the table's ``train`` or
+    ``test`` side (:mod:`bgap.traffic.scenes`: one scene in three held out for testing)."""
 
     def __post_init__(self) -> None:
         check(self.source in SOURCES, "traffic.source", self.source, f"use one of {SOURCES}")
         check(self.mode in MODES, "traffic.mode", self.mode, f"use one of {MODES}")
+        check(self.scenes in SIDES, "traffic.scenes", self.scenes, f"use one of {SIDES}")
         check(
             self.source != "replay" or bool(self.table),
             "traffic.table",
@@ -92,7 +101,10 @@ class TrafficConfig:
         """The environment config's ``traffic`` entry (absent for simulated traffic, so
         configs made before replay existed stay the same)."""
         keys = ("source", "table", "mode", "min_duration", "vehicle", "start", "scene")
-        return {k: getattr(self, k) for k in keys}
+        out = {k: getattr(self, k) for k in keys}
+        if self.scenes != "all":  # absent at its default: configs made before it stay the same
+            out["scenes"] = self.scenes
+        return out
 
 
 @dataclass
@@ -175,6 +187,21 @@ class Replay:
             )
         if max(len(scene.ids) for scene in self.scenes) < 2:
             raise TrajectoryError(f"{name}: every scene holds one vehicle; nothing to replay")
+
+    def side(self, name: str, side: str) -> Replay:
+        """A copy drawing its windows from one side (``train`` or ``test``) of the split of
+        the table called ``name`` (:func:`bgap.traffic.scenes.split_scenes`); the scenes
+        themselves are shared, not copied."""
+        train, test = split_scenes(name, [scene.number for scene in self.scenes])
+        kept = set(train if side == "train" else test)
+        out = copy.copy(self)
+        out.candidates = [(s, v) for s, v in self.candidates if self.scenes[s].number in kept]
+        if not out.candidates:
+            raise TrajectoryError(
+                f"{name}: no {side} scene to replay (a table's split holds one scene in each "
+                "complete block of three out: generate its scenes in multiples of three)"
+            )
+        return out
 
     def aggressive_share(self) -> Optional[float]:
         """Share of the recorded vehicles labelled aggressive among those labelled aggressive
@@ -338,15 +365,18 @@ def _cached(path: str, mtime_ns: int, size: int, frequency: float, min_duration:
     return Replay(path, frequency, min_duration)
 
 
-def load_replay(table: str, simulation_frequency: float, min_duration: float) -> Replay:
+def load_replay(
+    table: str, simulation_frequency: float, min_duration: float, scenes: str = "all"
+) -> Replay:
     """:class:`Replay` of the file ``table``, prepared once per version of the file (every
-    environment of a batch, and every reset, shares it)."""
+    environment of a batch, and every reset, shares it); ``scenes``: all of them, or one side
+    of the table's split (:data:`SIDES`), whose windows alone are drawn."""
     path = Path(table)
     if not path.exists():
         raise TrajectoryError(f"traffic.table={table}: no such file")
     stat = path.stat()
     try:
-        return _cached(
+        replay = _cached(
             str(path.resolve()),
             stat.st_mtime_ns,
             stat.st_size,
@@ -355,3 +385,4 @@ def load_replay(table: str, simulation_frequency: float, min_duration: float) ->
         )
     except TrajectoryError as err:  # which table: a grid names several
         raise TrajectoryError(f"{table}: {err}") from None
+    return replay if scenes == "all" else replay.side(table_name(table), scenes)

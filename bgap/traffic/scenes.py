@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 from collections.abc import Iterable
+from pathlib import Path
 
 BLOCK = 3
 """Scenes per block, one of which is held out: the 2:1 split."""
@@ -48,3 +49,10 @@ def split_scenes(table: str, scenes: Iterable[int]) -> tuple[list[int], list[int
     scenes = [int(s) for s in scenes]
     held = held_out_scenes(table, scenes)
     return [s for s in scenes if s not in held], [s for s in scenes if s in held]
+
+
+def table_name(table: str | Path) -> str:
+    """The name a table's scenes are split by: its folder's for the pipeline's
+    ``<name>/trajectories.parquet``, else the file's stem."""
+    path = Path(table)
+    return path.parent.name if path.stem == "trajectories" else path.stem
