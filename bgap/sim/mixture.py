@@ -38,7 +38,7 @@ from gymnasium.vector import AutoresetMode
 from bgap.common.errors import ConfigError, check
 from bgap.common.presets import load_preset, preset_path
 from bgap.sim import core
-from bgap.sim.vector import _PCG64, VectorHighway
+from bgap.sim.vector import VectorHighway
 from bgap.traffic.behaviors import BehaviorConfig, count_aggressive
 from bgap.traffic.mixture import EpisodeTraffic, MixtureConfig, draw, vehicle_groups
 from bgap.traffic.scenes import split_scenes, table_name
@@ -121,12 +121,9 @@ class DrawnTraffic(VectorHighway):
 
     def _spawn(self, envs: np.ndarray) -> None:
         """Each env's episode drawn, then the scenes spawned with the drawn classes and shares
-        (stock traffic: no vehicle labelled aggressive), one compiled call per class table,
-        then each vehicle's factor applied.
-
-        VectorHighway._spawn takes one class table and one mix rule per call, so its compiled
-        call is made here per drawn table (one call per env cost 7 ms each, a thread pool's
-        start); moving this into VectorHighway would change code every study stage reads."""
+        (stock traffic: no vehicle labelled aggressive), one compiled call per class table
+        (one per env cost 7 ms each, a thread pool's start), then each vehicle's factor
+        applied."""
         envs = np.asarray(envs, dtype=np.int64)
         tables: dict[str, list[int]] = {}
         for b in envs:
@@ -136,24 +133,7 @@ class DrawnTraffic(VectorHighway):
             self.n_aggressive[b] = 0 if stock else count_aggressive(episode.mix, self.n)
             tables.setdefault("stock" if stock else episode.behavior, []).append(int(b))
         for name, members in tables.items():
-            group = np.array(members, dtype=np.int64)
-            states = np.array(
-                [self._rngs[b].bit_generator.ctypes.state_address for b in group], np.uint64
-            )
-            core.spawn_batch(
-                self.f,
-                self.g,
-                self.p,
-                group,
-                self.n_aggressive[group],
-                self._ego_lane,
-                self._setup,
-                self.speeds,
-                self._tables[name],
-                _PCG64.next_double,
-                _PCG64.next_uint32,
-                states,
-            )
+            self._spawn_scenes(np.array(members, dtype=np.int64), self._tables[name])
         self.steps[envs] = 0
         for b in envs:
             if self.drawn[b].scale:

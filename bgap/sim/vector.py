@@ -194,10 +194,19 @@ class VectorHighway(gym.vector.VectorEnv):
                 self._spawn_replay(int(b))
             self.steps[envs] = 0
             return
+        for b in envs:
+            self.n_aggressive[b] = count_aggressive(
+                episode_mix(self.config, self._mix_rngs[b]), self.n
+            )
+        self._spawn_scenes(envs, self._classes)
+        self.steps[envs] = 0
+
+    def _spawn_scenes(self, envs: np.ndarray, classes: np.ndarray) -> None:
+        """The compiled scene draw (:func:`bgap.sim.core.spawn_batch`) for ``envs``, each
+        from its own stream, with the class table ``classes`` (:meth:`_class_table`) and each
+        env's ``n_aggressive``."""
         states = np.empty(envs.size, dtype=np.uint64)
         for a, b in enumerate(envs):
-            mix = episode_mix(self.config, self._mix_rngs[b])
-            self.n_aggressive[b] = count_aggressive(mix, self.n)
             bit_generator = self._rngs[b].bit_generator
             if not isinstance(bit_generator, np.random.PCG64):  # the kernel's draws are PCG64's
                 raise TypeError(f"env {b}'s stream is {type(bit_generator).__name__}, not PCG64")
@@ -211,12 +220,11 @@ class VectorHighway(gym.vector.VectorEnv):
             self._ego_lane,
             self._setup,
             self.speeds,
-            self._classes,
+            classes,
             _PCG64.next_double,
             _PCG64.next_uint32,
             states,
         )
-        self.steps[envs] = 0
 
     def _spawn_replay(self, b: int) -> None:
         """bgap.envs.highway's _create_replay for env b, drawn from its stream as
