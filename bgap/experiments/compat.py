@@ -63,8 +63,8 @@ def upgrade(stored: dict[str, Any], current: dict[str, Any]) -> dict[str, Any]:
 def as_before(settings: dict[str, Any]) -> dict[str, Any]:
     """A config's ``settings`` (``asdict``) without what was added later at the value every
     earlier config had (the ``agent`` settings of :data:`ADDED_WITH_ALGOS`, simulated
-    ``traffic``, a replay's ``scenes`` at ``all``), for the names hashed from them: folders and studies named before keep
-    their names."""
+    ``traffic``, a replay's ``scenes`` at ``all``), for the names hashed from them: folders
+    and studies named before keep their names."""
     settings = dict(settings)
     if isinstance(settings.get("agent"), dict):
         settings["agent"] = {

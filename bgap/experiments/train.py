@@ -64,6 +64,7 @@ from bgap.runner.jobs import run_jobs
 from bgap.runner.locks import all_exclusive
 from bgap.runner.progress import JobBars
 from bgap.runner.threads import set_threads
+from bgap.sim.mixture import MixtureHighway
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.simulators import make_vector_env
 from bgap.sim.vector import VectorHighway
@@ -81,10 +82,11 @@ def make_training_env(cfg: ExperimentConfig, n_envs: int, seed: int) -> VecMonit
     return VecMonitor(venv)
 
 
-def _vector_highway(env: VecMonitor) -> VectorHighway | None:
-    """The VectorHighway inside a training VecEnv (None on highway-env)."""
+def _vector_highway(env: VecMonitor) -> VectorHighway | MixtureHighway | None:
+    """The vector backend's environment inside a training VecEnv, whose state an exact
+    resume saves (None on highway-env)."""
     inner = env.venv.venv.unwrapped
-    return inner if isinstance(inner, VectorHighway) else None
+    return inner if isinstance(inner, (VectorHighway, MixtureHighway)) else None
 
 
 def resume_state(model: Any, env: Any) -> dict[str, Any]:

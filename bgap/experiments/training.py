@@ -98,7 +98,10 @@ def run_name(cfg: ExperimentConfig) -> str:
     """Readable prefix plus a hash of everything that changes what is learnt."""
     mix = f"mix{cfg.mix:g}" if cfg.mix_sampling == "fixed" else f"mix-{cfg.mix_sampling}"
     mix = mix if cfg.policy == "behavior_rich" else "stock"
-    name = f"{cfg.env.name}-{cfg.policy}-{mix}-{cfg.profile.name}-s{cfg.seed}"
+    density = cfg.env.name
+    if cfg.traffic.source == "mixture":  # every density and share, drawn per episode
+        density, mix = "mixture", "drawn"
+    name = f"{density}-{cfg.policy}-{mix}-{cfg.profile.name}-s{cfg.seed}"
     name += f"-{cfg.learner}" if cfg.learner != "sb3" else ""
     return f"{name}-{digest(training_identity(cfg))}"
 

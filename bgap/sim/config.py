@@ -61,8 +61,12 @@ class BaseConfig:
         (:func:`bgap.common.config.load`), not by every config built: a replayed table no
         episode can come from fails here, in one line."""
         t = self.traffic
+        frequency = self.env.simulation_frequency
         if t.source == "replay":
-            load_replay(t.table, self.env.simulation_frequency, t.min_duration)
+            load_replay(t.table, frequency, t.min_duration, t.scenes)
+        elif t.source == "mixture":  # every table the mixture replays, on its training side
+            for table in t.mixture.tables if t.mixture.sources.get("replay", 0) > 0 else []:
+                load_replay(table, frequency, t.min_duration, "train")
 
 
 SCHEMAS = (

@@ -193,9 +193,20 @@ def member_sizes(mixture: MixtureConfig, num_envs: int) -> tuple[list[tuple[int,
         "one replay table or more (the replay source has weight "
         f"{replay_weight:g}), or mixture.sources.replay=0",
     )
+    simulated = replay_weight < 1
+    least = len(mixture.vehicles) * simulated + len(tables) * (replay_weight > 0)
+    check(
+        num_envs >= least,
+        "n_envs",
+        num_envs,
+        f"at least {least} environments for the mixture: one per vehicle count "
+        f"({len(mixture.vehicles) * simulated}) and per replay table "
+        f"({len(tables) * (replay_weight > 0)}) (profile.n_envs)",
+    )
     replayed = 0
     if replay_weight > 0:
         replayed = max(len(tables), int(round(replay_weight * num_envs)))
+        replayed = min(replayed, num_envs - len(mixture.vehicles) * simulated)
     shares = [replayed // len(tables) + (i < replayed % len(tables)) for i in range(len(tables))]
     groups = vehicle_groups(mixture, num_envs - replayed) if replay_weight < 1 else []
     return groups, shares if replayed else [0] * len(tables)

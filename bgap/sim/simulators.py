@@ -27,8 +27,10 @@ from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
 from bgap.common.errors import ConfigError, check
 from bgap.common.vocab import BACKENDS, LABEL_CODES
+from bgap.sim.mixture import MixtureHighway
 from bgap.sim.recorder import RECORD_FIELDS
 from bgap.sim.vector import VectorHighway
+from bgap.traffic.mixture import MixtureConfig
 
 __all__ = ["RECORD_FIELDS", "make_vec_highway", "make_vector_env"]
 
@@ -54,6 +56,15 @@ def make_vector_env(
             is batched and threaded already and ignores it.
     """
     check(backend in BACKENDS, "backend", backend, f"use one of {BACKENDS}")
+    traffic = config.get("traffic") or {}
+    if traffic.get("source") == "mixture":  # the generalisation study's training traffic
+        if backend != "vector" or record or render:
+            raise ConfigError(
+                "traffic=mixture runs on backend=vector only, without recording or rendering; "
+                "record or watch its sources one at a time (traffic=simulated, traffic=replay)"
+            )
+        mixture = MixtureConfig(**traffic["mixture"])
+        return MixtureHighway(config, num_envs, mixture, traffic["min_duration"])
     if backend == "vector":
         if render:
             raise ConfigError(

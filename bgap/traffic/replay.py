@@ -26,7 +26,7 @@ from __future__ import annotations
 import copy
 import functools
 import re
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional
 
@@ -36,10 +36,11 @@ import pandas as pd
 from bgap.common.errors import TrajectoryError, check
 from bgap.common.tables import load_trajectories
 from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE, LABEL_NAMES
+from bgap.traffic.mixture import MixtureConfig
 from bgap.traffic.road import LANE_WIDTH
 from bgap.traffic.scenes import split_scenes, table_name
 
-SOURCES = ("simulated", "replay")
+SOURCES = ("simulated", "replay", "mixture")
 MODES = ("log", "reactive")
 SIDES = ("all", "train", "test")
 """Which of a table's scenes are replayed: all, or one side of the split that holds a third
@@ -54,7 +55,9 @@ class TrafficConfig:
 
     name: str = "simulated"
     source: str = "simulated"
-    """``simulated`` (bgap's driver classes, the default) or ``replay`` (a trajectory table)."""
+    """``simulated`` (bgap's driver classes, the default), ``replay`` (a trajectory table) or
+    ``mixture`` (each episode drawn from a mixture of sources, :mod:`bgap.traffic.mixture`;
+    vector backend)."""
     table: Optional[str] = None
     """``replay``: the trajectory table (.parquet or .csv, with a ``lane`` column)."""
     mode: str = "log"
@@ -73,9 +76,15 @@ class TrafficConfig:
     scenes: str = "all"
     """``replay``: the scenes windows are drawn from: ``all``, or the table's ``train`` or
     ``test`` side (:mod:`bgap.traffic.scenes`: one scene in three held out for testing)."""
+    mixture: Optional[MixtureConfig] = None
+    """``mixture``: its weights, ranges and replay tables (null: the defaults)."""
 
     def __post_init__(self) -> None:
         check(self.source in SOURCES, "traffic.source", self.source, f"use one of {SOURCES}")
+        if isinstance(self.mixture, dict):  # from an environment config's dictionary
+            self.mixture = MixtureConfig(**self.mixture)
+        if self.source == "mixture" and self.mixture is None:
+            self.mixture = MixtureConfig()
         check(self.mode in MODES, "traffic.mode", self.mode, f"use one of {MODES}")
         check(self.scenes in SIDES, "traffic.scenes", self.scenes, f"use one of {SIDES}")
         check(
@@ -100,6 +109,9 @@ class TrafficConfig:
     def as_config(self) -> dict:
         """The environment config's ``traffic`` entry (absent for simulated traffic, so
         configs made before replay existed stay the same)."""
+        if self.source == "mixture":
+            mixture = asdict(self.mixture)
+            return {"source": "mixture", "min_duration": self.min_duration, "mixture": mixture}
         keys = ("source", "table", "mode", "min_duration", "vehicle", "start", "scene")
         out = {k: getattr(self, k) for k in keys}
         if self.scenes != "all":  # absent at its default: configs made before it stay the same

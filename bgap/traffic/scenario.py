@@ -147,7 +147,7 @@ def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
     every reset (training across mixes)."""
     e, r = cfg.env, cfg.reward
     traffic = getattr(cfg, "traffic", None)
-    replay = {"traffic": traffic.as_config()} if traffic and traffic.source == "replay" else {}
+    replay = {"traffic": traffic.as_config()} if traffic and traffic.source != "simulated" else {}
     return {
         "observation": {**OBSERVATION, "vehicles_count": e.observed_vehicles},
         "action": {"type": "DiscreteMetaAction", "target_speeds": list(e.ego_speeds)},
