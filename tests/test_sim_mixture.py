@@ -17,11 +17,10 @@ from bgap.common.errors import ConfigError
 from bgap.sim import core
 from bgap.sim.highway_params import IDM_DEFAULTS
 from bgap.sim.mixture import DrawnTraffic, MixtureHighway, SplitReplay, member_sizes
-from bgap.traffic.scenes import table_name
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.traffic.mixture import MixtureConfig
 from bgap.traffic.scenario import env_config
-from bgap.traffic.scenes import split_scenes
+from bgap.traffic.scenes import split_scenes, table_name
 from tests.conftest import make_cfg
 
 ROWS = 17
@@ -199,3 +198,30 @@ def test_a_saved_state_resumes_the_same_episodes(tmp_path):
     for a, (obs, rewards) in zip(actions, ahead, strict=True):
         o, r, *_ = again.step(a)
         assert np.array_equal(o, obs) and np.array_equal(r, rewards)
+
+
+def test_traffic_mixture_trains_through_the_one_door_and_refuses_highway_env(tmp_path):
+    """``traffic=mixture`` composes, ``make_vector_env`` makes it as MixtureHighway (the
+    replay weight's environments on the table's training side), a PPO training at the
+    tiny profile runs on it in a run folder named for the mixture; highway-env, recording
+    and too few environments are refused in one line."""
+    from bgap.common.config import validate
+    from bgap.experiments.config import compose
+    from bgap.experiments.train import train
+    from bgap.sim.simulators import make_vector_env
+
+    table = _table(tmp_path)
+    overrides = ["traffic=mixture", f"traffic.mixture.tables=[{table}]", "traffic.min_duration=4",
+                 "traffic.mixture.vehicles=[5,10]", "env.observed_vehicles=17", "profile=tiny",
+                 "profile.n_envs=6", "agent=ppo", f"root={tmp_path}"]  # fmt: skip
+    cfg = validate(compose("train", overrides))
+    config = env_config(cfg)
+    env = make_vector_env(config, 6)
+    assert isinstance(env, MixtureHighway) and [m.num_envs for m in env.members] == [2, 2, 2]
+    with pytest.raises(ConfigError, match="backend=vector only"):
+        make_vector_env(config, 6, "highway")
+    with pytest.raises(ConfigError, match="n_envs=2 is invalid"):
+        make_vector_env(config, 2)
+    folder = train(cfg, progress=False)
+    assert folder.name.startswith("mixture-behavior_rich-drawn-tiny-s0-")
+    assert (folder / "model.zip").is_file()
