@@ -52,8 +52,9 @@ class ProfileConfig:
     checkpoint_rule: str = "return"
     """Which validation a training keeps as ``best_model.zip``: ``return``, the highest mean
     validation return (SB3's ``EvalCallback``), validated on ``val_seed + k``; ``per_km``, the
-    fewest collisions per 100 km among validations at least ``SPEED_FLOOR`` x idle's speed
-    on the same episodes (ties: the faster, then the later; the tuned rule's objective),
+    fewest collisions per 100 km among validations at least ``SPEED_FLOOR`` x the slower of
+    the idle and rule-based egos' speeds on the same episodes (ties: the faster, then the
+    later; :func:`bgap.agents.monitor.rank`),
     validated on :data:`CHECKPOINT_SEED` + k, with every validation's parameters kept in
     ``validations/``."""
 
