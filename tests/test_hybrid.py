@@ -58,3 +58,28 @@ def test_the_fallback_takes_the_rules_action_exactly_under_the_threshold():
 def test_a_threshold_outside_the_horizon_is_refused():
     with pytest.raises(ConfigError, match="threshold=12.0 is invalid"):
         Hybrid(lambda o, r: o, {}, threshold=12.0)
+
+
+def test_a_hybrid_spec_plays_its_policy_with_the_fallback_wherever_a_policy_plays():
+    """``hybrid:SPEC`` and ``hybrid-1:SPEC`` wrap SPEC's policy (here the scripted ``idle``)
+    at the default 2 s and at 1 s; on the frames above they fall back exactly where the
+    thresholds say; a bad threshold is one line."""
+    from bgap.agents.policies import as_policy, hybrid_spec
+
+    assert hybrid_spec("hybrid:zoo:main/dense/behavior_rich/s0") == (
+        2.0,
+        "zoo:main/dense/behavior_rich/s0",
+    )
+    assert hybrid_spec("hybrid-2.5:ppo:run/model.zip") == (2.5, "ppo:run/model.zip")
+    assert hybrid_spec("ppo:run/model.zip") is None
+    config = {"lanes_count": LANES}
+    obs = np.stack([frame([(20.0, 0.0, -10.0)]), frame([(-12.0, 0.0, 10.0)]), frame([])])
+    for spec, near in (
+        ("hybrid:idle", [True, True, False]),
+        ("hybrid-1:idle", [False, True, False]),
+    ):
+        policy, rows = as_policy(spec, config)
+        assert isinstance(policy, Hybrid) and rows is None
+        np.testing.assert_array_equal(policy.near_collision(obs), near)
+    with pytest.raises(ConfigError, match="hybrid-<seconds>:SPEC"):
+        as_policy("hybrid-soon:idle", config)

@@ -23,6 +23,9 @@ from bgap.agents.observation import TTC_HORIZON, ObservationFeatures
 from bgap.agents.rule_based import RuleBasedEgo, rule_based
 from bgap.common.errors import check
 
+DEFAULT_THRESHOLD = 2.0
+"""The fallback's time-to-collision threshold [s] unless a hybrid's spec names one."""
+
 
 class Hybrid:
     """``learned``'s actions with the rule-based ego's where the time to collision is under
@@ -33,7 +36,7 @@ class Hybrid:
         self,
         learned: Any,
         config: dict[str, Any] | None = None,
-        threshold: float = 2.0,
+        threshold: float = DEFAULT_THRESHOLD,
         rule: RuleBasedEgo | None = None,
     ) -> None:
         check(

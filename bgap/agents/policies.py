@@ -1,12 +1,13 @@
 """Policies by name or file: the scripted baselines and saved models of any SB3 algorithm.
 
 A policy spec is any of: a baseline name (``idle``, ``random``, ``left``, ``rule``,
-``rule_tuned``, ``idm``); the path
-of a saved Stable-Baselines3 model (``model.zip`` or its run folder; DQN, QR-DQN, PPO, A2C,
-SAC and TD3 are recognised from the file, or named as ``ppo:path``), a zoo name
-(``zoo:main/sparse/behavior_rich/s0``, :mod:`bgap.agents.zoo`) or a loaded model, played
-greedily; or a callable (:func:`bgap.sim.rollout.as_callable`). :func:`rollout` plays any
-spec on seeded episodes through the simulators' one rollout loop.
+``rule_tuned``, ``idm``); the path of a saved Stable-Baselines3 model (``model.zip`` or its
+run folder; DQN, QR-DQN, PPO, A2C, SAC and TD3 are recognised from the file, or named as
+``ppo:path``), a zoo name (``zoo:main/sparse/behavior_rich/s0``, :mod:`bgap.agents.zoo`) or
+a loaded model, played greedily; any of these as a hybrid with the rule-based ego's safety
+fallback (``hybrid:SPEC``, ``hybrid-2.5:SPEC``: :mod:`bgap.agents.hybrid`); or a callable
+(:func:`bgap.sim.rollout.as_callable`). :func:`rollout` plays any spec on seeded episodes
+through the simulators' one rollout loop.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from bgap.agents import zoo
+from bgap.agents.hybrid import DEFAULT_THRESHOLD, Hybrid
 from bgap.agents.observation import ObservationFeatures, model_features
 from bgap.agents.rule_based import DEFAULT, rule_based, tuned
 from bgap.common.errors import ConfigError
@@ -130,6 +132,30 @@ def _algorithm_of(path: Path) -> str:
     return found[0]
 
 
+HYBRID = "hybrid"
+"""The prefix of a hybrid's spec: ``hybrid:SPEC`` or ``hybrid-<threshold>:SPEC``."""
+
+
+def hybrid_spec(spec: str) -> tuple[float, str] | None:
+    """``(threshold, SPEC)`` of ``hybrid:SPEC`` (the fallback's default threshold) or
+    ``hybrid-2.5:SPEC`` (2.5 s), None for any other spec (:mod:`bgap.agents.hybrid`)."""
+    head, sep, rest = spec.partition(":")
+    if not sep or not head.startswith(HYBRID):
+        return None
+    given = head[len(HYBRID) :]
+    if not given:
+        return DEFAULT_THRESHOLD, rest
+    try:
+        if not given.startswith("-"):
+            raise ValueError(given)
+        return float(given[1:]), rest
+    except ValueError:
+        raise ConfigError(
+            f"{spec!r}: a hybrid is hybrid:SPEC or hybrid-<seconds>:SPEC (e.g. hybrid-2.5:"
+            f"{rest}), the time to collision under which the rule-based ego acts"
+        ) from None
+
+
 def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, int | None]:
     """Any policy spec (module docstring) as a :data:`~bgap.sim.rollout.Policy`, with the
     number of observation rows it needs (None: any). ``config``: the environment a baseline
@@ -138,6 +164,11 @@ def as_policy(spec: Any, config: dict[str, Any] | None = None) -> tuple[Policy, 
     if isinstance(spec, (str, Path)):
         if str(spec) in BASELINES:
             return baseline(str(spec), config), None
+        hybrid = hybrid_spec(str(spec))
+        if hybrid is not None:  # the learned policy with the rule-based safety fallback
+            threshold, learned = hybrid
+            policy, rows = as_policy(learned, config)
+            return Hybrid(policy, config, threshold), rows
         spec = load_model(spec)
     if hasattr(spec, "predict") and model_features(spec):
         features = ObservationFeatures(model_features(spec), config)
