@@ -415,3 +415,28 @@ def test_rollouts_that_skip_finished_envs_play_the_same_episodes(tmp_path, monke
     assert skipped.episodes.steps.nunique() > 1  # some envs finished early and were skipped
     if traffic != "replay":
         pd.testing.assert_frame_equal(skipped.trajectories, played.trajectories)
+
+
+def test_both_backends_count_the_same_overtakes():
+    """A fast ego (FASTER, then keeping its speed) in sparse traffic from the same scene on
+    both backends: the vehicles it passes, step by step, are the same count, and it passes
+    some; the rollout's ``overtakes`` column sums them when asked."""
+    from bgap.traffic.road import FASTER
+
+    env, venv = _twin("env=sparse", "mix=0.0", seed=4)
+    total = 0
+    for k in range(40):
+        a = FASTER if k < 3 else IDLE
+        obs, reward, term, trunc, info = env.step(a)
+        _, _, vterm, vtrunc, vinfo = venv.step(np.array([a]))
+        assert int(vinfo["overtakes"][0]) == info["overtakes"], k
+        total += info["overtakes"]
+        if term or trunc:
+            break
+    assert total > 0
+    config = env_config(make_cfg("env=sparse", "mix=0.0", "env.duration=10"))
+    from bgap.agents.policies import rollout
+
+    rows = rollout(config, "rule", range(20), overtakes=True).episodes
+    assert "overtakes" in rows and (rows.overtakes >= 0).all() and rows.overtakes.sum() > 0
+    assert "overtakes" not in rollout(config, "rule", range(2)).episodes

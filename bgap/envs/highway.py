@@ -187,7 +187,23 @@ class BehaviorHighwayEnv(HighwayEnv):
     # ---------------------------------------------------------------- stepping
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
         self._target_lane_before = self.vehicle.target_lane_index
+        self._x_before = {id(v): float(v.position[0]) for v in self.road.vehicles}
         return super().step(action)
+
+    def overtakes(self) -> int:
+        """Vehicles the ego passed in the last step: ahead of it (centre to centre) before
+        the step, behind it after; vehicles that entered or left the road in it not counted
+        (:func:`bgap.sim.passing.overtakes`, the vector backend's count)."""
+        before = getattr(self, "_x_before", {})
+        ego = self.vehicle
+        if id(ego) not in before:
+            return 0
+        x0, x1 = before[id(ego)], float(ego.position[0])
+        return sum(
+            1
+            for v in self.road.vehicles
+            if v is not ego and id(v) in before and before[id(v)] > x0 and v.position[0] < x1
+        )
 
     def _after_frame(self) -> None:
         self.frame += 1
@@ -249,6 +265,7 @@ class BehaviorHighwayEnv(HighwayEnv):
                 "aggressive_fraction": _fraction_aggressive(others),
                 "aggressive_fraction_observed": _fraction_aggressive(seen),
                 "observed_count": len(seen),
+                "overtakes": self.overtakes(),
             }
         )
         if self.replay is not None:  # the ego's crash partner could not react (log mode)

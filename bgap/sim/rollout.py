@@ -83,8 +83,12 @@ class EpisodeStats:
     otherwise ``rear_end`` when the vehicle it touched is ahead of it (``info["contact_dx"]``
     > 0), ``rear_ended`` when behind. Our definitions; the paper counts crashes only."""
 
-    def __init__(self, num_envs: int, policy_frequency: float = 1.0) -> None:
+    def __init__(
+        self, num_envs: int, policy_frequency: float = 1.0, overtakes: bool = False
+    ) -> None:
         self.speed = np.zeros(num_envs)
+        self.passed = np.zeros(num_envs, dtype=np.int64)
+        self.count_overtakes = overtakes  # an ``overtakes`` column (the generalisation study)
         self.steps = np.zeros(num_envs, dtype=np.int64)
         self.lanes = np.zeros(num_envs, dtype=np.int64)
         self.total = np.zeros(num_envs)
@@ -103,6 +107,8 @@ class EpisodeStats:
         self.steps[idx] += 1
         changed = np.asarray(info["lane_change"], dtype=np.int64)[idx]
         self.lanes[idx] += changed
+        if "overtakes" in info:
+            self.passed[idx] += np.asarray(info["overtakes"], dtype=np.int64)[idx]
         self.last_lane_change[idx[changed > 0]] = self.steps[idx[changed > 0]]
         self.total[idx] += np.asarray(reward, dtype=float)[idx]
         self.crashed[idx] = np.asarray(info["crashed"], dtype=bool)[idx]
@@ -136,6 +142,7 @@ class EpisodeStats:
             "ending": self.ending(i),
             "avg_speed": float(self.speed[i] / steps),
             "lane_changes": int(self.lanes[i]),
+            **({"overtakes": int(self.passed[i])} if self.count_overtakes else {}),
             "steps": int(self.steps[i]),
             "return": float(self.total[i]),
             **{f"r_{term}": float(self.terms[i, k] / steps) for k, term in enumerate(TERMS)},
@@ -144,7 +151,7 @@ class EpisodeStats:
         }
 
     def clear(self, i: int) -> None:
-        for array in (self.speed, self.steps, self.lanes, self.total, self.crashed):
+        for array in (self.speed, self.steps, self.lanes, self.total, self.crashed, self.passed):
             array[i] = 0
         self.terms[i] = 0.0
         self.last_lane_change[i] = -(10**9)
@@ -175,12 +182,14 @@ def rollout(
     record: bool = False,
     render: bool = False,
     progress: Callable[[int], Any] | None = None,
+    overtakes: bool = False,
 ) -> Rollout:
     """Play ``policy`` for one episode per seed in the environment ``config`` on ``backend``.
 
     Episodes run ``batch`` at a time side by side (default: all of them, at most 256, on the
     vector backend; one at a time on highway-env, whose copies would idle once finished).
     ``progress(k)`` is called with the number of episodes each batch finished.
+    ``overtakes``: each row also counts the vehicles the ego passed (``overtakes``).
     """
     seeds = [int(s) for s in seeds]
     act, _ = as_callable(policy)
@@ -195,7 +204,8 @@ def rollout(
         if callable(reset):  # stateful policies (a scripted ego) start over per batch
             reset()
         try:
-            result = _play(venv, act, chunk, record, film, config.get("policy_frequency", 1))
+            frequency = config.get("policy_frequency", 1)
+            result = _play(venv, act, chunk, record, film, frequency, overtakes)
         finally:
             venv.close()
         rows.extend({"seed": seed, **row} for seed, row in zip(chunk, result[0], strict=True))
@@ -213,14 +223,20 @@ def rollout(
 
 
 def _play(
-    venv: Any, act: Policy, seeds: Sequence[int], record: bool, film: bool, policy_frequency: float
+    venv: Any,
+    act: Policy,
+    seeds: Sequence[int],
+    record: bool,
+    film: bool,
+    policy_frequency: float,
+    overtakes: bool = False,
 ) -> tuple[list[dict], list[tuple[np.ndarray, list[str]]], list[np.ndarray]]:
     """Every env's first episode after a seeded reset; an env that finished idles or, on the
     vector backend, stops (its next episode is not counted)."""
     b = len(seeds)
     obs, info = venv.reset(seed=list(seeds))
     rngs = [np.random.default_rng(seed) for seed in seeds]
-    stats = EpisodeStats(b, policy_frequency)
+    stats = EpisodeStats(b, policy_frequency, overtakes)
     live = np.ones(b, dtype=bool)
     frames = [[info["reset_frames"][i]] for i in range(b)] if record else []
     labels = [[LABEL_NAMES[int(c)] for c in info["labels"][i]] for i in range(b)] if record else []

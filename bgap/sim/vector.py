@@ -47,6 +47,7 @@ from bgap.sim.core import (
     Y,
 )
 from bgap.sim.highway_params import IDM_DEFAULTS, PARAM_COLUMNS, check_supported, column_value
+from bgap.sim.passing import overtakes
 from bgap.sim.recorder import RECORD_FIELDS, initial_states
 from bgap.traffic.behaviors import (
     DRIVER_ATTRIBUTES,
@@ -388,6 +389,7 @@ class VectorHighway(gym.vector.VectorEnv):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs)
         before = self.g[:, 0, TARGET_LANE].copy()
+        x_before = self.f[:, :, X].copy()
         if self.replay is not None:
             start, first, length = self._track_index
             core.replay_batch(
@@ -425,6 +427,7 @@ class VectorHighway(gym.vector.VectorEnv):
         terminated = terms["collision_reward"] > 0
         truncated = self.steps >= np.minimum(self.max_steps, self._window_steps)
         info = self._info(terms["lane_change_reward"] > 0)
+        info["overtakes"] = overtakes(x_before, self.f[:, :, X])
         if self.replay is not None:  # the ego's crash partner still followed its log
             logs = (self._rp[:, :, core.R_STATE] >= core.R_LOG) & (self.g[:, :, CRASHED] > 0)
             info["log_contact"] = (self.g[:, 0, CRASHED] > 0) & logs[:, 1:].any(axis=1)
