@@ -83,3 +83,22 @@ def test_a_hybrid_spec_plays_its_policy_with_the_fallback_wherever_a_policy_play
         np.testing.assert_array_equal(policy.near_collision(obs), near)
     with pytest.raises(ConfigError, match="hybrid-<seconds>:SPEC"):
         as_policy("hybrid-soon:idle", config)
+
+
+def test_an_evaluation_plays_a_hybrid_and_counts_overtakes():
+    """``bgap.evaluate`` with ``hybrid:idle`` beside ``idle`` on the same seeded episodes
+    and ``grid.overtakes=true``: the hybrid's rows carry its fallback's share, every row an
+    ``overtakes`` count; where the fallback never acted, the hybrid's episodes are idle's."""
+    from bgap.common.config import validate
+    from bgap.experiments.config import compose
+    from bgap.experiments.evaluate import evaluate
+
+    cfg = validate(compose("evaluate", ["env=dense", "profile=tiny", "grid.overtakes=true"]))
+    rows = evaluate(cfg, {"idle": "idle", "h": "hybrid:idle"}, episodes=6, progress=False)
+    assert {"overtakes", "fallback_share"} <= set(rows.columns)
+    hybrid, idle = rows[rows.policy == "h"], rows[rows.policy == "idle"]
+    share = hybrid.fallback_share.iloc[0]
+    assert 0.0 <= share <= 1.0 and idle.fallback_share.isna().all()
+    if share == 0.0:
+        assert hybrid.steps.tolist() == idle.steps.tolist()
+    assert (rows.overtakes >= 0).all()

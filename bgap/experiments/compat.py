@@ -63,8 +63,9 @@ def upgrade(stored: dict[str, Any], current: dict[str, Any]) -> dict[str, Any]:
 def as_before(settings: dict[str, Any]) -> dict[str, Any]:
     """A config's ``settings`` (``asdict``) without what was added later at the value every
     earlier config had (the ``agent`` settings of :data:`ADDED_WITH_ALGOS`, simulated
-    ``traffic``, a replay's ``scenes`` at ``all``), for the names hashed from them: folders
-    and studies named before keep their names."""
+    ``traffic``, a replay's ``scenes`` at ``all`` and ``mixture`` unset, the grid's
+    ``overtakes`` off), for the names hashed from them: folders and studies named before
+    keep their names."""
     settings = dict(settings)
     if isinstance(settings.get("agent"), dict):
         settings["agent"] = {
@@ -75,6 +76,11 @@ def as_before(settings: dict[str, Any]) -> dict[str, Any]:
     traffic = settings.get("traffic") or {}
     if traffic.get("source", "simulated") == "simulated":
         settings.pop("traffic", None)
-    elif traffic.get("scenes", "all") == "all":  # every scene: as before the split existed
-        settings["traffic"] = {k: v for k, v in traffic.items() if k != "scenes"}
+    elif isinstance(traffic, dict):  # replayed: every scene, no mixture, as before either
+        settings["traffic"] = {
+            k: v for k, v in traffic.items() if (k, v) not in (("scenes", "all"), ("mixture", None))
+        }
+    grid = settings.get("grid")
+    if isinstance(grid, dict) and grid.get("overtakes") is False:  # not counted, as before
+        settings["grid"] = {k: v for k, v in grid.items() if k != "overtakes"}
     return settings

@@ -119,6 +119,9 @@ class GridConfig:
     that density play it, and its duration) or ``PATH`` (the run's own density)."""
     modes: list[str] = field(default_factory=lambda: ["log"])
     """``traffic.mode`` of the replay cells: ``log``, ``reactive``, or both."""
+    overtakes: bool = False
+    """Also count each episode's overtakes (an ``overtakes`` column): the vehicles the ego
+    passed (:mod:`bgap.sim.passing`)."""
 
     def __post_init__(self) -> None:
         self.mixes = [m + 0.0 for m in self.mixes]  # -0.0 is 0.0

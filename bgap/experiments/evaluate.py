@@ -24,7 +24,16 @@ from omegaconf import DictConfig
 from tqdm import tqdm
 
 from bgap.agents import zoo
-from bgap.agents.policies import ALGORITHMS, as_policy, load_model, model_path, rollout
+from bgap.agents.hybrid import Hybrid
+from bgap.agents.policies import (
+    ALGORITHMS,
+    HYBRID,
+    as_policy,
+    hybrid_spec,
+    load_model,
+    model_path,
+    rollout,
+)
 from bgap.analysis.episodes import MODELS
 from bgap.cmetric import boundary as classes
 from bgap.common.config import app, load
@@ -129,17 +138,38 @@ def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
 
 
 def _evaluate_chunk(
-    name: str, spec: Any, cell: Cell, env_cfg: dict, seeds: list[int], backend: str = "highway"
+    name: str,
+    spec: Any,
+    cell: Cell,
+    env_cfg: dict,
+    seeds: list[int],
+    backend: str = "highway",
+    overtakes: bool = False,
+    threshold: float | None = None,
 ) -> list:
+    """One policy's episodes on one cell; ``threshold``: played as a hybrid with the
+    rule-based ego's fallback (:mod:`bgap.agents.hybrid`), its share of decisions in a
+    ``fallback_share`` column."""
     policy, rows = as_policy(spec, env_cfg)
     if rows is not None and rows != env_cfg["observation"]["vehicles_count"]:
         return []  # a model sees a fixed number of vehicles: only its own density
+    if threshold is not None:
+        policy = Hybrid(policy, env_cfg, threshold)
     key = {"policy": name, "mix": cell.mix, "density": cell.density, "radius": cell.radius}
     if cell.table:
         key["replay"] = cell.replay
-    episodes = rollout(env_cfg, policy, seeds, backend).episodes
+    episodes = rollout(env_cfg, policy, seeds, backend, overtakes=overtakes).episodes
     episodes["distance"] = episode_distance(episodes, env_cfg["policy_frequency"])
+    if threshold is not None:
+        episodes["fallback_share"] = policy.share
     return [{**key, **row} for row in episodes.to_dict(orient="records")]
+
+
+def learned_part(spec: Any) -> tuple[float | None, Any]:
+    """(the fallback's threshold, the learned policy's spec) of a hybrid's spec
+    (``hybrid:SPEC``), (None, ``spec``) of any other."""
+    hybrid = hybrid_spec(str(spec)) if isinstance(spec, (str, Path)) else None
+    return hybrid if hybrid is not None else (None, spec)
 
 
 EVALUATE_FIX = (
@@ -158,6 +188,7 @@ def _check_densities(
     rows = {c.density: cell_env_config(cfg, c)["observation"]["vehicles_count"] for c in cells}
     needed = {}
     for name, spec in policies.items():
+        spec = learned_part(spec)[1]  # a hybrid observes what its learned policy does
         scripted = isinstance(spec, str) and spec in BASELINES  # any rows: none loaded here
         needs = needed[name] = None if scripted else as_policy(spec)[1]
         if needs is not None and needs not in rows.values():
@@ -192,7 +223,11 @@ def _own_density(needed: dict[str, int | None], cells: list[Cell], configs: list
 
 def _shippable(spec: Any) -> Any:
     """A policy spec a cluster's node can play: a saved model as ``(file name, bytes)`` (the
-    node needs no access to this machine's files), anything else as it is."""
+    node needs no access to this machine's files), a hybrid as ``(HYBRID, threshold, its
+    learned part shippable)``, anything else as it is."""
+    threshold, learned = learned_part(spec)
+    if threshold is not None:
+        return (HYBRID, threshold, _shippable(learned))
     if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
         algo, sep, rest = str(spec).partition(":")
         named = bool(sep) and algo.lower() in ALGORITHMS  # ppo:run/model.zip
@@ -208,21 +243,26 @@ _MODELS: dict[str, Any] = {}
 """A worker process's loaded models by path (an SB3 load builds the networks again)."""
 
 
-def _evaluate_job(name: str, spec: Any, *rest: Any) -> list:
+def _evaluate_job(name: str, spec: Any, *rest: Any, threshold: float | None = None) -> list:
     """:func:`_evaluate_chunk` wherever it runs: a saved model loaded once per process (an
     SB3 load builds the networks again: ~0.3 s, 1,200 times in the paper's grid), a model
-    shipped to a cluster's node (:func:`_shippable`) written to a file of its own first."""
+    shipped to a cluster's node (:func:`_shippable`) written to a file of its own first; a
+    hybrid's learned part loaded so, the hybrid made around it (``threshold``)."""
+    if isinstance(spec, tuple) and spec[0] == HYBRID:
+        return _evaluate_job(name, spec[2], *rest, threshold=spec[1])
     if isinstance(spec, tuple):
         prefix, data = spec
         with tempfile.TemporaryDirectory() as tmp:
             path = Path(tmp) / "model.zip"
             path.write_bytes(data)
-            return _evaluate_chunk(name, load_model(f"{prefix}{path}"), *rest)
+            return _evaluate_chunk(name, load_model(f"{prefix}{path}"), *rest, threshold)
+    given, spec = learned_part(spec)
+    threshold = given if given is not None else threshold
     if isinstance(spec, (str, Path)) and str(spec) not in BASELINES:
         if str(spec) not in _MODELS:
             _MODELS[str(spec)] = load_model(spec)
         spec = _MODELS[str(spec)]
-    return _evaluate_chunk(name, spec, *rest)
+    return _evaluate_chunk(name, spec, *rest, threshold)
 
 
 def _density_of(rows: int) -> str:
@@ -281,12 +321,13 @@ def play_plan(
     _MODELS.clear()  # models loaded by an earlier evaluation here: their files may be new
     needed = _check_densities(policies, cells, cfg)
     for spec in policies.values():  # a zoo policy plays only under the settings it trained for
+        spec = learned_part(spec)[1]
         if isinstance(spec, (str, Path)) and zoo.card(Path(spec)):
             for config in configs:
                 zoo.check_played_under(Path(spec), config, fix=EVALUATE_FIX)
     skipped = _own_density(needed, cells, configs)
     jobs = [
-        (name, spec, cell, configs[k], seeds[i : i + chunk], cfg.backend)
+        (name, spec, cell, configs[k], seeds[i : i + chunk], cfg.backend, cfg.grid.overtakes)
         for k, cell in enumerate(cells)
         for name, spec in policies.items()
         if (name, k) not in skipped  # the progress bar counts the episodes played
