@@ -189,7 +189,7 @@ def _numpy_spawn(venv: VectorHighway, b: int, rng: np.random.Generator, k: int) 
         rows = np.flatnonzero(labels == code) + 1
         if rows.size == 0:
             continue
-        params = venv.behavior[name]
+        params = venv.config["behavior"][name]
         p[rows, core.P_DELTA] = deltas[rows - 1]
         for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
             if params.get(key) is not None:

@@ -1,6 +1,7 @@
 """highway-env's side of the vectorised backend: the highway-env options it supports
-(:func:`check_supported`) and the IDM/MOBIL attributes of highway-env's vehicles as rows of
-the kernels' parameter columns (:mod:`bgap.sim.core`)."""
+(:func:`check_supported`), the IDM/MOBIL attributes of highway-env's vehicles as rows of
+the kernels' parameter columns (:mod:`bgap.sim.core`), and bgap's driver classes as the
+class table the compiled scene draw reads (:func:`class_table`)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,8 @@ import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.sim import core
-from bgap.sim.core import N_PARAM
+from bgap.sim.core import AGGRESSIVE, CONSERVATIVE, N_PARAM
+from bgap.traffic.behaviors import DRIVER_ATTRIBUTES, BehaviorVehicle, is_stock
 
 # Parameter column of each IDMVehicle attribute, in highway-env's units except P_B, which
 # holds the braking magnitude -COMFORT_ACC_MIN.
@@ -72,3 +74,26 @@ def check_supported(config: dict[str, Any]) -> None:
     sim, pol = int(config["simulation_frequency"]), int(config["policy_frequency"])
     if sim % pol:
         raise ValueError("simulation_frequency must be a multiple of policy_frequency")
+
+
+def class_table(behavior: dict[str, Any]) -> np.ndarray:
+    """:func:`bgap.sim.core.spawn`'s ``classes`` for the environment config's ``behavior``:
+    the ego's row (highway-env's IDM defaults), then each class's code, v0, v0 spread and
+    parameter row."""
+    table = np.zeros((3, 3 + N_PARAM))
+    table[0, 3:] = IDM_DEFAULTS
+    for c, (code, name) in enumerate(((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive"))):
+        params = behavior[name]
+        row = IDM_DEFAULTS.copy()
+        row[core.P_DELTA] = np.nan  # drawn per vehicle unless the class sets it
+        for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
+            if params.get(key) is not None:
+                row[PARAM_COLUMNS[attr]] = column_value(attr, float(convert(params[key])))
+        if not is_stock(params):
+            row[core.P_OWN] = 1.0
+            row[core.P_VMAX] = BehaviorVehicle.MAX_SPEED
+        v0 = params.get("v0")
+        spread = float(params.get("v0_spread") or 0.0)
+        table[c + 1, :3] = (code, np.nan if v0 is None else float(v0), spread)
+        table[c + 1, 3:] = row
+    return table

@@ -38,6 +38,7 @@ from gymnasium.vector import AutoresetMode
 from bgap.common.errors import ConfigError, check
 from bgap.common.presets import load_preset, preset_path
 from bgap.sim import core
+from bgap.sim.highway_params import class_table
 from bgap.sim.vector import VectorHighway
 from bgap.traffic.behaviors import BehaviorConfig, count_aggressive
 from bgap.traffic.mixture import EpisodeTraffic, MixtureConfig, draw, vehicle_groups
@@ -86,16 +87,12 @@ class DrawnTraffic(VectorHighway):
         super().__init__(config, num_envs)
         simulated = {k: w for k, w in mixture.sources.items() if k != "replay" and w > 0}
         self.mixture = replace(mixture, sources=simulated)
-        self._tables = {"stock": self._table_of(_behavior("stock"))}
+        self._tables = {"stock": class_table(_behavior("stock"))}
         for name in self.mixture.classes:
-            self._tables[name] = self._table_of(_behavior(name))
+            self._tables[name] = class_table(_behavior(name))
         self._draw_rngs = [np.random.default_rng() for _ in range(self.num_envs)]
         self.drawn: list[EpisodeTraffic | None] = [None] * self.num_envs
         """Each env's current episode's draw."""
-
-    def _table_of(self, behavior: dict[str, Any]) -> np.ndarray:
-        self.behavior = behavior
-        return self._class_table()
 
     def reset(self, *, seed: Any = None, options: dict | None = None):
         seeds = _seeds(seed, self.num_envs)

@@ -31,8 +31,6 @@ from bgap.common.errors import ConfigError, check, check_memory
 from bgap.common.vocab import FINISHED
 from bgap.sim import core
 from bgap.sim.core import (
-    AGGRESSIVE,
-    CONSERVATIVE,
     CRASHED,
     EGO,
     LABEL,
@@ -46,15 +44,13 @@ from bgap.sim.core import (
     X,
     Y,
 )
-from bgap.sim.highway_params import IDM_DEFAULTS, PARAM_COLUMNS, check_supported, column_value
+from bgap.sim.highway_params import check_supported, class_table
 from bgap.sim.passing import overtakes
 from bgap.sim.recorder import RECORD_FIELDS, initial_states
 from bgap.traffic.behaviors import (
-    DRIVER_ATTRIBUTES,
     BehaviorVehicle,
     count_aggressive,
     episode_mix,
-    is_stock,
     mix_stream,
 )
 from bgap.traffic.replay import load_replay
@@ -133,7 +129,6 @@ class VectorHighway(gym.vector.VectorEnv):
         self.dt = 1.0 / float(cfg["simulation_frequency"])
         self.max_steps = int(np.ceil(float(cfg["duration"]) * int(cfg["policy_frequency"]) - 1e-9))
         self.speeds = np.asarray(cfg["action"].get("target_speeds", [20, 25, 30]), dtype=float)
-        self.behavior = cfg["behavior"]
         n_veh, b = self.n + 1, self.num_envs
         check_memory(
             self._bytes_needed(),
@@ -157,7 +152,7 @@ class VectorHighway(gym.vector.VectorEnv):
         self._setup = np.array([self.lanes, ego_offset, 1 / float(cfg["vehicles_density"]), spread])
         lane_id = cfg.get("initial_lane_id")
         self._ego_lane = -1 if lane_id is None else int(lane_id)
-        self._classes = self._class_table()
+        self._classes = class_table(cfg["behavior"])
         self.single_observation_space = spaces.Box(-1.0, 1.0, (self.rows, 5), np.float32)
         self.single_action_space = spaces.Discrete(5)
         self.observation_space = spaces.Box(-1.0, 1.0, (b, self.rows, 5), np.float32)
@@ -204,7 +199,7 @@ class VectorHighway(gym.vector.VectorEnv):
 
     def _spawn_scenes(self, envs: np.ndarray, classes: np.ndarray) -> None:
         """The compiled scene draw (:func:`bgap.sim.core.spawn_batch`) for ``envs``, each
-        from its own stream, with the class table ``classes`` (:meth:`_class_table`) and each
+        from its own stream, with the class table ``classes`` (:func:`class_table`) and each
         env's ``n_aggressive``."""
         states = np.empty(envs.size, dtype=np.uint64)
         for a, b in enumerate(envs):
@@ -288,32 +283,6 @@ class VectorHighway(gym.vector.VectorEnv):
         self._rframe[b] = w.start
         self.n_aggressive[b] = sum(scene.labels[v] == "aggressive" for v in others)
         self._others[b] = len(others)
-
-    def _class_table(self) -> np.ndarray:
-        """:func:`bgap.sim.core.spawn`'s ``classes``: the ego's row (highway-env's IDM
-        defaults), then each class's code, v0, v0 spread and parameter row."""
-        table = np.zeros((3, 3 + N_PARAM))
-        table[0, 3:] = IDM_DEFAULTS
-        for c, (code, name) in enumerate(
-            ((CONSERVATIVE, "conservative"), (AGGRESSIVE, "aggressive"))
-        ):
-            params = self.behavior[name]
-            row = IDM_DEFAULTS.copy()
-            row[core.P_DELTA] = np.nan  # drawn per vehicle unless the class sets it
-            for key, (attr, convert) in DRIVER_ATTRIBUTES.items():
-                if params.get(key) is not None:
-                    row[PARAM_COLUMNS[attr]] = column_value(attr, float(convert(params[key])))
-            if not is_stock(params):
-                row[core.P_OWN] = 1.0
-                row[core.P_VMAX] = BehaviorVehicle.MAX_SPEED
-            v0 = params.get("v0")
-            table[c + 1, :3] = (
-                code,
-                np.nan if v0 is None else float(v0),
-                float(params.get("v0_spread") or 0.0),
-            )
-            table[c + 1, 3:] = row
-        return table
 
     def load_scene(self, b: int, scene: Scene) -> None:
         """Put ``scene`` (e.g. from :func:`~bgap.sim.highway_scenes.scene_from_highway`)
