@@ -79,6 +79,7 @@ def _within_noise(a: np.ndarray, b: np.ndarray, k: float = 3.0) -> bool:
     return abs(a.mean() - b.mean()) <= k * se + 1e-9
 
 
+@pytest.mark.slow  # the default suite's time budget
 def test_stock_traffic_matches_highway_v0():
     settings = {
         "lanes_count": 4,

@@ -407,6 +407,7 @@ def test_replay_cells_get_their_own_traffic_claims_and_table(tmp_path):
 ISSUE_NUMBER = re.compile(r"issues? #?[0-9]+", re.I)
 
 
+@pytest.mark.slow  # the default suite's time budget
 def test_no_figure_or_page_names_an_issue_number(tmp_path, monkeypatch):
     """Every text drawn on the figures (titles, labels, legends) and the results page speak
     of the study, never of the tracker: the figures of two committed arms, read as drawn."""

@@ -269,6 +269,7 @@ def test_cmetric_refuses_what_it_cannot_score_in_one_line(table, source, message
 SCHEMA_KEYS = ["mix", "radius", "seed", "env.duration", "profile.eval_episodes", "grid", "env"]
 
 
+@pytest.mark.slow  # the default suite's time budget
 @settings(max_examples=60, derandomize=True, deadline=None, database=None)
 @given(
     st.one_of(

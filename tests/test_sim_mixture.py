@@ -200,6 +200,7 @@ def test_a_saved_state_resumes_the_same_episodes(tmp_path):
         assert np.array_equal(o, obs) and np.array_equal(r, rewards)
 
 
+@pytest.mark.slow  # the default suite's time budget
 def test_traffic_mixture_trains_through_the_one_door_and_refuses_highway_env(tmp_path):
     """``traffic=mixture`` composes, ``make_vector_env`` makes it as MixtureHighway (the
     replay weight's environments on the table's training side), a PPO training at the

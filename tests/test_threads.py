@@ -7,11 +7,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 
 PROBE = """
 import sys, tempfile, torch
 from pathlib import Path
+
+import pytest
 from bgap.common.config import validate
 from bgap.runner.threads import set_threads
 from bgap.experiments.config import compose
@@ -37,6 +41,7 @@ def _torch_threads_after_a_reset(how: str) -> int:
     return int(done.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # the default suite's time budget
 def test_one_torch_thread_stays_one_after_the_simulators_first_kernel():
     """The hazard, as bgap.train meets it (a model built, then the first reset: numba's
     OpenMP layer starts and torch's count becomes numba's 2), and the helper that starts
