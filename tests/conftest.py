@@ -28,6 +28,7 @@ import tempfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 import pytest  # noqa: E402
 
 from bgap.common.config import validate  # noqa: E402
@@ -151,3 +152,32 @@ def postgres():
     yield f"postgresql://bgap@127.0.0.1:{port}/postgres"
     run(str(bindir / "pg_ctl"), "-D", str(data / "db"), "-m", "fast", "stop")
     shutil.rmtree(data, ignore_errors=True)
+
+
+def scenes_table(folder) -> str:
+    """A replay table of six scenes of 30 s at 15 Hz on two lanes, three vehicles each at a
+    steady 21-23 m/s, written as the pipeline names its tables
+    (``<folder>/sumo-idm-dense/trajectories.parquet``, whose folder names its split)."""
+    t = np.arange(451) / 15.0
+    rows = [
+        pd.DataFrame(
+            {
+                "episode": scene,
+                "frame": np.arange(451),
+                "time": t,
+                "vehicle_id": vid,
+                "x": 30.0 * vid + (20.0 + vid) * t,
+                "y": 4.0 * (vid % 2),
+                "vx": 20.0 + vid,
+                "vy": 0.0,
+                "lane": vid % 2,
+                "label": "conservative",
+            }
+        )  # fmt: skip
+        for scene in range(6)
+        for vid in (1, 2, 3)
+    ]
+    path = folder / "sumo-idm-dense" / "trajectories.parquet"
+    path.parent.mkdir(parents=True)
+    pd.concat(rows, ignore_index=True).to_parquet(path)
+    return str(path)

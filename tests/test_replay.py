@@ -12,7 +12,7 @@ from bgap.common.errors import TrajectoryError
 from bgap.traffic.replay import Replay
 from bgap.traffic.road import IDLE, SLOWER
 from bgap.traffic.scenario import env_config
-from tests.conftest import make_cfg
+from tests.conftest import make_cfg, scenes_table
 
 
 def _replaying(config: dict, table, **traffic) -> dict:
@@ -234,34 +234,6 @@ def test_bad_replay_grids_fail_in_one_line(tmp_path, overrides, message):
     assert "\n" not in str(err.value)
 
 
-def _scenes_table(folder) -> str:
-    """Six scenes of 30 s on two lanes, two vehicles each, named as the pipeline names a
-    table (``<name>/trajectories.parquet``, whose folder names its split)."""
-    t = np.arange(451) / 15.0
-    rows = [
-        pd.DataFrame(
-            {
-                "episode": scene,
-                "frame": np.arange(451),
-                "time": t,
-                "vehicle_id": vid,
-                "x": 40.0 * vid + 20.0 * t,
-                "y": 4.0 * (vid % 2),
-                "vx": 20.0,
-                "vy": 0.0,
-                "lane": vid % 2,
-                "label": "conservative",
-            }
-        )  # fmt: skip
-        for scene in range(6)
-        for vid in (1, 2)
-    ]
-    path = folder / "sumo-idm-dense" / "trajectories.parquet"
-    path.parent.mkdir(parents=True)
-    pd.concat(rows, ignore_index=True).to_parquet(path)
-    return str(path)
-
-
 @pytest.mark.parametrize("backend", ["highway", "vector"])
 def test_traffic_scenes_replays_one_side_of_the_split_on_both_backends(tmp_path, backend):
     """``traffic.scenes=test`` draws every window from the table's held-out scenes and
@@ -272,7 +244,7 @@ def test_traffic_scenes_replays_one_side_of_the_split_on_both_backends(tmp_path,
     train, test = split_scenes("sumo-idm-dense", range(6))
     config = env_config(make_cfg("env=sparse", "env.duration=4"))
     for side, want in (("test", test), ("train", train), ("all", range(6))):
-        settings = _replaying(config, _scenes_table(tmp_path / side), min_duration=4.0)
+        settings = _replaying(config, scenes_table(tmp_path / side), min_duration=4.0)
         settings["traffic"] |= {"scenes": side} if side != "all" else {}
         venv = make_vector_env(settings, 2, backend)
         inner = venv.env.envs[0].unwrapped if backend == "highway" else venv

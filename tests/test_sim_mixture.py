@@ -9,7 +9,6 @@ from __future__ import annotations
 from collections import Counter
 
 import numpy as np
-import pandas as pd
 import pytest
 from scipy.stats import chisquare
 
@@ -21,41 +20,13 @@ from bgap.sim.sb3 import SB3VecEnv
 from bgap.traffic.mixture import MixtureConfig
 from bgap.traffic.scenario import env_config
 from bgap.traffic.scenes import split_scenes, table_name
-from tests.conftest import make_cfg
+from tests.conftest import make_cfg, scenes_table
 
 ROWS = 17
 
 
 def _config() -> dict:
     return env_config(make_cfg("env=sparse", f"env.observed_vehicles={ROWS}", "env.duration=4"))
-
-
-def _table(folder) -> str:
-    """Six scenes of 30 s at 15 Hz on two lanes, three vehicles each at a steady 20-24 m/s,
-    written as the pipeline names its tables (``<name>/trajectories.parquet``)."""
-    t = np.arange(451) / 15.0
-    rows = [
-        pd.DataFrame(
-            {
-                "episode": scene,
-                "frame": np.arange(451),
-                "time": t,
-                "vehicle_id": vid,
-                "x": 30.0 * vid + (20.0 + vid) * t,
-                "y": 4.0 * (vid % 2),
-                "vx": 20.0 + vid,
-                "vy": 0.0,
-                "lane": vid % 2,
-                "label": "conservative",
-            }
-        )  # fmt: skip
-        for scene in range(6)
-        for vid in (1, 2, 3)
-    ]
-    path = folder / "sumo-idm-dense" / "trajectories.parquet"
-    path.parent.mkdir(parents=True)
-    pd.concat(rows, ignore_index=True).to_parquet(path)
-    return str(path)
 
 
 def test_episodes_draw_bgap_and_stock_with_their_weights():
@@ -110,7 +81,7 @@ def test_a_drawn_episodes_drivers_carry_their_class_times_their_factor():
 def test_replayed_environments_play_training_scenes_only(tmp_path):
     """The replay member's windows, over 600 resets, all come from the table's training
     scenes (four of six), and every training scene is played."""
-    table = _table(tmp_path)
+    table = scenes_table(tmp_path)
     train, test = split_scenes("sumo-idm-dense", range(6))
     assert table_name(table) == "sumo-idm-dense" and len(test) == 2
     mixture = MixtureConfig(sources={"bgap": 0.0, "stock": 0.0, "replay": 1.0}, tables=[table])
@@ -130,7 +101,7 @@ def test_replayed_environments_play_training_scenes_only(tmp_path):
 def test_a_test_side_replay_plays_the_held_out_scenes_only(tmp_path):
     """The other side of the split, in log mode as the study's evaluation may play it: 600
     windows, all from the two held-out scenes, both played."""
-    table = _table(tmp_path)
+    table = scenes_table(tmp_path)
     _, test = split_scenes("sumo-idm-dense", range(6))
     env = SplitReplay(_config(), 12, table, 4.0, side="test", mode="log")
     scene_of = {track: s for (s, _), track in env._track_of.items()}
@@ -149,7 +120,7 @@ def test_members_share_the_environments_and_step_as_one(tmp_path):
     """The replay weight's share of the environments replays, the rest is shared among the
     vehicle counts; one step of the whole equals each member's own step from the same
     seeds; the SB3 adapter takes it."""
-    table = _table(tmp_path)
+    table = scenes_table(tmp_path)
     mixture = MixtureConfig(vehicles=[5, 10], tables=[table])
     assert member_sizes(mixture, 20) == ([(5, 7), (10, 7)], [6])
     env = MixtureHighway(_config(), 20, mixture, min_duration=4.0)
@@ -184,7 +155,7 @@ def test_a_saved_state_resumes_the_same_episodes(tmp_path):
     """Ten steps after a state is saved, in the same environment and in a new one the state
     was loaded into: the same observations and rewards, automatic resets (each env's next
     draw) included."""
-    mixture = MixtureConfig(vehicles=[5, 10], tables=[_table(tmp_path)])
+    mixture = MixtureConfig(vehicles=[5, 10], tables=[scenes_table(tmp_path)])
     env = MixtureHighway(_config(), 14, mixture, min_duration=4.0)
     env.reset(seed=7)
     rng = np.random.default_rng(1)
@@ -211,7 +182,7 @@ def test_traffic_mixture_trains_through_the_one_door_and_refuses_highway_env(tmp
     from bgap.experiments.train import train
     from bgap.sim.simulators import make_vector_env
 
-    table = _table(tmp_path)
+    table = scenes_table(tmp_path)
     overrides = ["traffic=mixture", f"traffic.mixture.tables=[{table}]", "traffic.min_duration=4",
                  "traffic.mixture.vehicles=[5,10]", "env.observed_vehicles=17", "profile=tiny",
                  "profile.n_envs=6", "agent=ppo", f"root={tmp_path}"]  # fmt: skip
