@@ -41,8 +41,9 @@ def crossings(argv: list[str]) -> set[tuple[str, str]]:
     def profile(frame: FrameType, event: str, arg: Any) -> None:
         if event != "call" or frame.f_back is None:
             return
-        callee, caller = frame.f_globals.get("__name__", ""), frame.f_back.f_globals.get(
-            "__name__", ""
+        callee, caller = (
+            frame.f_globals.get("__name__", ""),
+            frame.f_back.f_globals.get("__name__", ""),
         )
         a, b = side(caller), side(callee)
         if a and b and a != b:
