@@ -22,13 +22,12 @@ fault (no more, where that driver has none), at a mean speed of at least
 
 from __future__ import annotations
 
-import numpy as np
 import pandas as pd
 
 from bgap.analysis.crashes import AT_FAULT
-from bgap.analysis.episodes import distinct_cells, is_replay
+from bgap.analysis.episodes import is_replay
 from bgap.analysis.stats import RULE_FLOOR
-from bgap.analysis.yardsticks import compare
+from bgap.analysis.yardsticks import METRICS, aligned, compare, read_cells, same_episodes
 from bgap.common.vocab import YARDSTICK_NAMES, YARDSTICKS
 
 TESTS = {
@@ -40,14 +39,15 @@ TESTS = {
 """The test families, each pooled on its own, and how the table names them."""
 CELL = ["traffic", "density", "mix", "radius"]
 """What makes a cell: its episodes are pooled before cells are averaged."""
+ARRAYS = (*METRICS, "fault", "lane_changes")
+"""Each episode's figures the table reads: crashes, distance, speed, at-fault crashes and
+lane changes."""
 
 
 def test_episodes(df: pd.DataFrame, test: str) -> pd.DataFrame:
     """The episodes of ``df`` in the test family ``test`` (module docstring)."""
     if test.startswith("bgap_"):
-        g = df[(df.traffic == "paper") & (df.density == test.removeprefix("bgap_"))]
-        g = distinct_cells(g) if len(g) else g
-        return g[g.radius == g.radius.max()] if len(g) else g
+        return read_cells(df, test.removeprefix("bgap_"))
     if test == "stock":
         return df[df.traffic == "stock"]
     if test == "replay":
@@ -55,39 +55,22 @@ def test_episodes(df: pd.DataFrame, test: str) -> pd.DataFrame:
     raise ValueError(f"unknown test family {test!r}; one of {list(TESTS)}")
 
 
-def _arrays(episodes: pd.DataFrame, seeds: list, order: pd.DataFrame) -> dict[str, np.ndarray]:
-    """``[training seed, episode]`` arrays in the episode order ``order`` (cell and seed):
-    crashes, at-fault crashes, distances, speeds and lane changes."""
-    index = pd.MultiIndex.from_tuples(
-        [(s, *row) for s in seeds for row in order.itertuples(index=False)],
-        names=["train_seed", *order.columns],
-    )
-    e = episodes.set_index(["train_seed", *order.columns]).reindex(index)
-    crashed = e.crashed.astype(float)
-    fault = crashed * e.ending.isin(AT_FAULT).astype(float)
-    shape = (len(seeds), len(order))
-    out = {"crashed": crashed, "fault": fault, "distance": e.distance, "avg_speed": e.avg_speed}
-    out["lane_changes"] = e.lane_changes
-    return {k: np.asarray(v, dtype=float).reshape(shape) for k, v in out.items()}
-
-
 def versus(policy: pd.DataFrame, yard: pd.DataFrame) -> dict[str, float] | None:
     """One learned policy's episodes against a hand-built driver's in one test family, or
     None where some training seed did not play exactly the driver's episodes."""
     key = [*CELL, "seed"]
-    order = yard[key].drop_duplicates().sort_values(key).reset_index(drop=True)
-    want = set(map(tuple, order.to_numpy()))
-    if any(set(map(tuple, g[key].to_numpy())) != want for _, g in policy.groupby("train_seed")):
+    if not same_episodes(policy, yard, key):
         return None
+    order = yard[key].drop_duplicates().sort_values(key).reset_index(drop=True)
     cells = order[CELL].astype(str).agg("|".join, axis=1).to_numpy()
-    mine = _arrays(policy, sorted(set(policy.train_seed)), order)
-    theirs = _arrays(yard, sorted(set(yard.train_seed)), order)
-    row = compare(
-        *(tuple(a[k] for k in ("crashed", "distance", "avg_speed")) for a in (mine, theirs)), cells
-    )
-    fault = compare(
-        *(tuple(a[k] for k in ("fault", "distance", "avg_speed")) for a in (mine, theirs)), cells
-    )
+    sides = []
+    for episodes in (policy, yard):
+        episodes = episodes.assign(fault=episodes.crashed & episodes.ending.isin(AT_FAULT))
+        seeds = sorted(set(episodes.train_seed))
+        sides.append(dict(zip(ARRAYS, aligned(episodes, seeds, order, ARRAYS), strict=True)))
+    mine, theirs = sides
+    row = compare(*(tuple(a[k] for k in METRICS) for a in sides), cells)
+    fault = compare(*(tuple(a[k] for k in ("fault", *METRICS[1:])) for a in sides), cells)
     out = {k: row[k] for k in ("n_seeds", "per_100km", "yard_per_100km", "diff", "diff_lo")}
     out |= {k: row[k] for k in ("diff_hi", "avg_speed", "yard_speed", "speed_ratio")}
     out |= {f"fault_{k}": fault[k] for k in ("per_100km", "yard_per_100km", "diff_lo", "diff_hi")}

@@ -48,17 +48,24 @@ def read_cells(df: pd.DataFrame, density: str) -> pd.DataFrame:
     return g[g.radius == g.radius.max()]
 
 
-def aligned(episodes: pd.DataFrame, seeds: list[int], order: pd.DataFrame) -> tuple:
-    """Crashes, distances and speeds of ``episodes`` as ``[seed, episode]`` arrays in the
-    episode order ``order`` (its ``mix`` and ``seed`` columns)."""
+METRICS = ("crashed", "distance", "avg_speed")
+"""What :func:`compare` reads of each episode."""
+
+
+def aligned(
+    episodes: pd.DataFrame, seeds: list[int], order: pd.DataFrame, metrics: tuple = METRICS
+) -> tuple:
+    """The ``metrics`` (default: crashes, distances and speeds) of ``episodes`` as
+    ``[seed, episode]`` arrays in the episode order ``order`` (its columns name an episode:
+    here ``mix`` and ``seed``)."""
+    keys = list(order.columns)
     index = pd.MultiIndex.from_tuples(
-        [(s, m, e) for s in seeds for m, e in zip(order.mix, order.seed, strict=True)],
-        names=["train_seed", *KEY],
+        [(s, *row) for s in seeds for row in order.itertuples(index=False)],
+        names=["train_seed", *keys],
     )
-    e = episodes.set_index(["train_seed", *KEY])[["crashed", "distance", "avg_speed"]]
-    e = e.reindex(index)
+    e = episodes.set_index(["train_seed", *keys])[list(metrics)].reindex(index)
     shape = (len(seeds), len(order))
-    return tuple(e[k].to_numpy(float).reshape(shape) for k in ("crashed", "distance", "avg_speed"))
+    return tuple(e[k].to_numpy(float).reshape(shape) for k in metrics)
 
 
 def linearised(c: np.ndarray, d: np.ndarray, v: np.ndarray, mixes: np.ndarray) -> tuple:
@@ -129,10 +136,11 @@ def versus(policy: pd.DataFrame, yard: pd.DataFrame) -> dict[str, float]:
     return compare(mine, theirs, order.mix.to_numpy())
 
 
-def _same_episodes(policy: pd.DataFrame, yard: pd.DataFrame) -> bool:
-    """Whether every training seed of ``policy`` played exactly the yardstick's episodes."""
-    want = set(map(tuple, yard[KEY].to_numpy()))
-    return all(set(map(tuple, g[KEY].to_numpy())) == want for _, g in policy.groupby("train_seed"))
+def same_episodes(policy: pd.DataFrame, yard: pd.DataFrame, key: list[str] = KEY) -> bool:
+    """Whether every training seed of ``policy`` played exactly the yardstick's episodes
+    (named by ``key``)."""
+    want = set(map(tuple, yard[key].to_numpy()))
+    return all(set(map(tuple, g[key].to_numpy())) == want for _, g in policy.groupby("train_seed"))
 
 
 def versus_yardsticks(df: pd.DataFrame) -> pd.DataFrame:
@@ -148,7 +156,7 @@ def versus_yardsticks(df: pd.DataFrame) -> pd.DataFrame:
         learned = g[g.arm != ""]
         for (arm, family), pol in learned.groupby(["arm", "family"], sort=True):
             for name, yard in yards.items():
-                if not _same_episodes(pol, yard):
+                if not same_episodes(pol, yard):
                     continue  # another grid: not the same episodes
                 rows.append(
                     {
