@@ -269,6 +269,7 @@ def _study(root: Path, chosen: list[int], lane_changes: float, verdict: str) -> 
             "seed": 100000,
             "crashed": False,
             "lane_changes": lane_changes,
+            "distance": 1000.0,
         }
     ).to_parquet(folder / "episodes.parquet")
     pd.DataFrame(

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from bgap.analysis.episodes import distinct_cells, parse_policies
+from bgap.analysis.episodes import parse_policies, policy_parts
 from bgap.analysis.paper import HEADLINE
+from bgap.analysis.yardsticks import read_cells
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run as a script: tools.*
 from tools.cli import OneLineParser  # noqa: E402
@@ -59,9 +60,9 @@ def checkpoints(root: Path) -> pd.DataFrame:
     """Per arm, density and family: policies, kept in the first fifth, median position."""
     rows = []
     for path in sorted((root / "results/evaluation").glob("*/paper/models.csv")):
-        m = parse_policies(pd.read_csv(path).assign(crashed=False))
-        m = m[m.arm != ""]
-        m["density"] = m.policy.str.split("/").str[1]
+        m = pd.read_csv(path)
+        m = pd.concat([m, policy_parts(m.policy)[["arm", "density", "family"]]], axis=1)
+        m = m[m.family.notna()]  # trained policies only
         m["position"] = m.chosen_episodes / m.validated_episodes
         for (arm, density, family), g in m.groupby(["arm", "density", "family"]):
             rows.append({"arm": arm, "density": density, "family": family,
@@ -77,10 +78,8 @@ def lane_changes(root: Path) -> pd.DataFrame:
     for path in sorted((root / "results/evaluation").glob("*/paper/episodes.parquet")):
         df = parse_policies(pd.read_parquet(path))
         df = df[df.arm != ""]
-        for density, d in df.groupby("density"):
-            d = distinct_cells(d)
-            d = d[d.radius == d.radius.max()]
-            for (arm, family), g in d.groupby(["arm", "family"]):
+        for density in sorted(set(df.density)):
+            for (arm, family), g in read_cells(df, density).groupby(["arm", "family"]):
                 rows.append({"arm": arm, "density": density, "family": family,
                              "lane_changes": float(g.lane_changes.mean())})  # fmt: skip
     return pd.DataFrame(rows)
