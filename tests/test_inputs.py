@@ -117,6 +117,34 @@ def test_a_users_lone_config_yaml_is_not_taken_for_an_interrupted_commands(
     assert status == 0, err
 
 
+@pytest.mark.parametrize(
+    "left",
+    [
+        {"command.txt": "python -m bgap.simulate out=killed\n", ".config.4242.tmp.yaml": "a"},
+        {".command.4242.tmp.txt": "python -m bgap.sim"},
+    ],
+    ids=["inside-config-yaml", "inside-command-txt"],
+)
+def test_a_kill_inside_the_metadatas_atomic_write_does_not_block_a_rerun(
+    tmp_path, monkeypatch, capsys, left
+):
+    """SIGKILL between write_atomic's temporary file and its rename (a window CI's random
+    kills met once) leaves ``.<name>.<pid>.tmp<suffix>`` beside or without command.txt: the
+    same command runs again; a user's own hidden file still refuses the folder."""
+    monkeypatch.chdir(tmp_path)
+    killed = tmp_path / "killed"
+    killed.mkdir()
+    for name, text in left.items():
+        (killed / name).write_text(text)
+    status, err = _command("simulate", ["out=killed", "episodes=1"], monkeypatch, capsys)
+    assert status == 0, err
+    assert (killed / "config.yaml").exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / ".notes.tmp.txt").write_text("a user's")
+    status, err = _command("simulate", ["out=mine", "episodes=1"], monkeypatch, capsys)
+    assert status == 2 and "holds files no bgap command wrote (.notes.tmp.txt)" in err, err
+
+
 def test_an_interrupted_commands_metadata_does_not_block_a_rerun(tmp_path, monkeypatch, capsys):
     """Ctrl-C during bgap.simulate leaves config.yaml and command.txt only, and says so; a
     rerun with other settings then runs (nothing of a result would be lost)."""

@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import pickle
+import re
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
@@ -208,7 +209,10 @@ def only_metadata(folder: Path) -> bool:
 
 def _written_by_bgap(file: Path) -> bool:
     """A ``command.txt`` that :func:`save_run_metadata` wrote (a kill before its
-    ``config.yaml`` leaves it alone in the folder)."""
+    ``config.yaml`` leaves it alone in the folder), or the temporary file of a
+    :func:`write_atomic` a kill stopped before its rename (metadata included)."""
+    if _TEMPORARY.fullmatch(file.name):
+        return True
     try:
         return file.name == COMMAND and file.read_text().startswith("python ")
     except (OSError, UnicodeDecodeError):
@@ -233,13 +237,17 @@ def refuse_foreign(folder: Path) -> None:
         )
 
 
+_TEMPORARY = re.compile(r"\..+\.\d+\.tmp(\.[^.]+)?")
+"""The name :func:`write_atomic` writes into before its rename: ``.<stem>.<pid>.tmp<suffix>``."""
+
+
 def write_atomic(path: Path, data: str | bytes | Callable[[Path], Any]) -> Path:
     """Write ``path`` whole or not at all: into a temporary name beside it, then renamed
     (a kill leaves the previous file or none, never half of one). ``data``: text, bytes,
     or a function that writes the file at the path it is given."""
     path = Path(path)
     # the same suffix: writers such as SB3's save add theirs to a name without it
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")  # see _TEMPORARY
     try:
         if callable(data):
             data(tmp)
