@@ -64,6 +64,7 @@ from bgap.runner.jobs import run_jobs
 from bgap.runner.locks import exclusive
 from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import env_config, env_preset
+from bgap.traffic.scenes import table_name
 
 
 @dataclass(frozen=True)
@@ -83,9 +84,7 @@ class Cell:
         ``trajectories.*`` by its folder's name); "" for simulated traffic."""
         if not self.table:
             return ""
-        path = Path(self.table)
-        name = path.parent.name if path.stem == "trajectories" else path.stem
-        return f"{name}/{self.mode}"
+        return f"{table_name(self.table)}/{self.mode}"
 
     @property
     def key(self) -> str:

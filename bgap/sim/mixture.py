@@ -27,7 +27,7 @@ policy reads them all.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, replace
+from dataclasses import replace
 from typing import Any
 
 import gymnasium as gym
@@ -39,9 +39,10 @@ from bgap.common.errors import ConfigError, check
 from bgap.common.presets import load_preset, preset_path
 from bgap.sim import core
 from bgap.sim.highway_params import class_table
-from bgap.sim.vector import VectorHighway
-from bgap.traffic.behaviors import BehaviorConfig, count_aggressive
+from bgap.sim.vector import VectorHighway, env_seeds
+from bgap.traffic.behaviors import BehaviorConfig, count_aggressive, env_behavior
 from bgap.traffic.mixture import EpisodeTraffic, MixtureConfig, draw, vehicle_groups
+from bgap.traffic.replay import SIDES
 from bgap.traffic.scenes import split_scenes, table_name
 
 VEHICLE_LENGTH = 5.0
@@ -49,8 +50,6 @@ VEHICLE_LENGTH = 5.0
 SCALED = (core.P_T, core.P_A, core.P_B, core.P_POLITENESS, core.P_GAIN, core.P_BSAFE)
 """The IDM and MOBIL parameter columns a vehicle's factor multiplies, beside the bumper gap
 (DELTA keeps highway-env's own per-vehicle draw; v0 keeps its class's spread)."""
-SIDES = ("train", "test")
-"""The two sides of a replayed table's scenes (:class:`SplitReplay`)."""
 _STREAM = 0x6D6978
 """Mixed into an env's seed for its own stream of traffic draws (:func:`draw_stream`)."""
 
@@ -70,15 +69,6 @@ def scale_parameters(p: np.ndarray, factors: np.ndarray) -> None:
     p[:, core.P_D0] = gap * f[:, 0] + VEHICLE_LENGTH
 
 
-def _seeds(seed: int | Sequence[int] | None, n: int) -> list[int] | None:
-    if seed is None:
-        return None
-    seeds = list(seed) if isinstance(seed, Sequence) else [seed + k for k in range(n)]
-    if len(seeds) != n:
-        raise ValueError(f"got {len(seeds)} seeds for {n} envs")
-    return seeds
-
-
 class DrawnTraffic(VectorHighway):
     """A VectorHighway whose every episode draws its traffic from ``mixture``'s simulated
     sources (bgap's drivers, stock traffic) with their weights."""
@@ -95,7 +85,7 @@ class DrawnTraffic(VectorHighway):
         """Each env's current episode's draw."""
 
     def reset(self, *, seed: Any = None, options: dict | None = None):
-        seeds = _seeds(seed, self.num_envs)
+        seeds = env_seeds(seed, self.num_envs)
         if seeds is not None:
             self._draw_rngs = [draw_stream(s) for s in seeds]
         return super().reset(seed=seeds, options=options)
@@ -143,12 +133,7 @@ def _behavior(name: str) -> dict[str, Any]:
     if not path.exists():
         choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
         raise ConfigError(f"mixture.classes: no behaviour preset {name!r}; use {choices}")
-    preset = load_preset(BehaviorConfig, path)
-    return {
-        "name": preset.name,
-        "conservative": asdict(preset.conservative),
-        "aggressive": asdict(preset.aggressive),
-    }
+    return env_behavior(load_preset(BehaviorConfig, path))
 
 
 class SplitReplay(VectorHighway):
@@ -165,15 +150,13 @@ class SplitReplay(VectorHighway):
         side: str = "train",
         mode: str = "reactive",
     ) -> None:
-        check(side in SIDES, "side", side, f"one of {SIDES}")
+        split = SIDES[1:]  # a side of the split, not "all"
+        check(side in split, "side", side, f"one of {split}")
         traffic = {"source": "replay", "table": str(table), "mode": mode, "scenes": side}
         traffic |= {"min_duration": min_duration, "vehicle": None, "start": None, "scene": None}
         super().__init__({**config, "traffic": traffic}, num_envs)
         numbers = [scene.number for scene in self.replay.scenes]
         self.training_scenes, self.test_scenes = split_scenes(table_name(table), numbers)
-
-    def reset(self, *, seed: Any = None, options: dict | None = None):
-        return super().reset(seed=_seeds(seed, self.num_envs), options=options)
 
 
 def member_sizes(mixture: MixtureConfig, num_envs: int) -> tuple[list[tuple[int, int]], list[int]]:
@@ -257,7 +240,7 @@ class MixtureHighway(gym.vector.VectorEnv):
         return out
 
     def reset(self, *, seed: Any = None, options: dict | None = None):
-        seeds = _seeds(seed, self.num_envs)
+        seeds = env_seeds(seed, self.num_envs)
         parts = []
         for m, lo, hi in zip(self.members, self._edges[:-1], self._edges[1:], strict=True):
             parts.append(m.reset(seed=None if seeds is None else seeds[lo:hi], options=options))

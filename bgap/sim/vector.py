@@ -72,6 +72,17 @@ class Scene:
     steps: int = 0
 
 
+def env_seeds(seed: int | Sequence[int | None] | None, n: int) -> list[int | None] | None:
+    """The seeds of ``n`` environments reset with ``seed``: ``seed + k`` for env k (or
+    ``seed[k]``, one per env); None leaves every env's streams running."""
+    if seed is None:
+        return None
+    seeds = list(seed) if isinstance(seed, Sequence) else [seed + k for k in range(n)]
+    if len(seeds) != n:
+        raise ValueError(f"got {len(seeds)} seeds for {n} envs")
+    return seeds
+
+
 class VectorHighway(gym.vector.VectorEnv):
     """``num_envs`` behaviour-rich highways in lock step.
 
@@ -329,14 +340,8 @@ class VectorHighway(gym.vector.VectorEnv):
         self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
         """Reset every env; env k takes seed ``seed + k`` (or ``seed[k]``)."""
-        if seed is not None:
-            seeds = (
-                list(seed)
-                if isinstance(seed, Sequence)
-                else [seed + k for k in range(self.num_envs)]
-            )
-            if len(seeds) != self.num_envs:
-                raise ValueError(f"got {len(seeds)} seeds for {self.num_envs} envs")
+        seeds = env_seeds(seed, self.num_envs)
+        if seeds is not None:
             self._rngs = [np.random.default_rng(s) for s in seeds]
             self._mix_rngs = [mix_stream(s) for s in seeds]
         self._spawn(np.arange(self.num_envs))

@@ -89,6 +89,15 @@ class BehaviorConfig:
     it unless ``behavior.converged=true`` says it is used knowingly."""
 
 
+def env_behavior(behavior: BehaviorConfig) -> dict[str, Any]:
+    """``behavior`` as an environment config's ``behavior`` entry (both backends read it)."""
+    return {
+        "name": behavior.name,
+        "conservative": asdict(behavior.conservative),
+        "aggressive": asdict(behavior.aggressive),
+    }
+
+
 def paper_behavior() -> BehaviorConfig:
     """Table I of the paper, from its one home: the packaged preset ``behavior/paper.yaml``
     (read once per version of the file: every environment built takes these defaults, and

@@ -26,7 +26,7 @@ from highway_env.envs.highway_env import HighwayEnv
 from bgap.common.errors import ConfigError, check
 from bgap.common.presets import load_preset, preset_path
 from bgap.common.vocab import CLASSES, MIX_SAMPLING
-from bgap.traffic.behaviors import BehaviorConfig, paper_behavior
+from bgap.traffic.behaviors import BehaviorConfig, env_behavior, paper_behavior
 from bgap.traffic.replay import TrafficConfig
 
 
@@ -163,11 +163,7 @@ def env_config(cfg: Scenario, mix_sampling: str = "fixed") -> dict[str, Any]:
         "mix": cfg.mix,
         "mix_sampling": mix_sampling,
         "perception_radius": cfg.radius,
-        "behavior": {
-            "name": cfg.behavior.name,
-            "conservative": asdict(cfg.behavior.conservative),
-            "aggressive": asdict(cfg.behavior.aggressive),
-        },
+        "behavior": env_behavior(cfg.behavior),
         **replay,
     }
 
