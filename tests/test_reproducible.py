@@ -15,7 +15,13 @@ ROOT = Path(__file__).resolve().parent.parent
 
 _ARMS = ["main", "authors", "mix0", "mix50", "mix100"]
 _LEARNERS = ["learner-dqn", "learner-qrdqn", "learner-ppo"]
-_DONE = {"evaluate_baselines", "train@main-dense", "zoo@main-dense"}
+_DONE = {
+    "evaluate_baselines",
+    "train@main-dense",
+    "zoo@main-dense",
+    "train@main-sparse",
+    "zoo@main-sparse",
+}
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
     {f"train@{a}-{d}" for a in _ARMS for d in ("sparse", "dense")}
