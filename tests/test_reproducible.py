@@ -21,6 +21,8 @@ _DONE = {
     "zoo@main-dense",
     "train@main-sparse",
     "zoo@main-sparse",
+    "train@mix0-sparse",
+    "zoo@mix0-sparse",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
