@@ -23,6 +23,8 @@ _DONE = {
     "zoo@main-sparse",
     "train@mix0-sparse",
     "zoo@mix0-sparse",
+    "train@mix0-dense",
+    "zoo@mix0-dense",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
