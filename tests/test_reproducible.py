@@ -25,6 +25,8 @@ _DONE = {
     "zoo@mix0-sparse",
     "train@mix0-dense",
     "zoo@mix0-dense",
+    "train@mix50-sparse",
+    "zoo@mix50-sparse",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
