@@ -27,6 +27,8 @@ _DONE = {
     "zoo@mix0-dense",
     "train@mix50-sparse",
     "zoo@mix50-sparse",
+    "train@mix50-dense",
+    "zoo@mix50-dense",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
