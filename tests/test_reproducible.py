@@ -29,6 +29,8 @@ _DONE = {
     "zoo@mix50-sparse",
     "train@mix50-dense",
     "zoo@mix50-dense",
+    "train@mix100-sparse",
+    "zoo@mix100-sparse",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
