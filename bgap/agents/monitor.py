@@ -32,6 +32,7 @@ from bgap.agents.policies import rollout
 from bgap.common.plotting import pyplot
 from bgap.common.runs import BEST_MODEL, CHECKPOINT_STATE, write_atomic
 from bgap.common.scores import collisions_per_100km, constrained_score, episode_distance
+from bgap.common.vocab import FLOOR_BAND, SPEED_FLOOR
 from bgap.runner.interrupt import CtrlC
 from bgap.sim.rollout import EpisodeStats
 
@@ -245,8 +246,8 @@ def rank(record: dict[str, Any], rule: str) -> tuple[float, ...]:
     """A validation's place under ``rule``, lower first: ``return``, the mean validation
     return; ``per_km``, the constrained score on kilometres
     (:func:`~bgap.common.scores.constrained_score`: collisions per 100 km where the mean
-    speed reaches ``SPEED_FLOOR`` x the reference speed, else 100 + the shortfall), then the
-    faster. Equal ranks go to the later validation.
+    speed reaches ``SPEED_FLOOR`` x the reference speed within :data:`FLOOR_BAND` below it,
+    else 100 + the shortfall), then the faster. Equal ranks go to the later validation.
 
     The reference is the slower of the idle and the rule-based egos on the same episodes
     (idle's alone where a record lacks the rule's). The floor is there to keep out a crawl,
@@ -258,8 +259,31 @@ def rank(record: dict[str, Any], rule: str) -> tuple[float, ...]:
     if rule == "return":
         return (-record["return"],)
     reference = min(record["idle_avg_speed"], record.get("rule_avg_speed", np.inf))
-    score = constrained_score(record["per_100km"], record["avg_speed"], reference)
+    floor = SPEED_FLOOR * (1 - FLOOR_BAND)
+    score = constrained_score(record["per_100km"], record["avg_speed"], reference, floor)
     return (score, -record["avg_speed"])
+
+
+def choose_again(run_dir: Path, rule: str) -> bool:
+    """Rank a training's recorded validations (``evaluations.csv``) by ``rule`` once more, as
+    it ranks them today, and keep the first: its parameters (kept in ``validations/``) as
+    ``best_model.zip``, its record as ``best.json``. A finished training is reused as it is,
+    so a change to the rule reaches it only so; True where the kept checkpoint changed.
+    Only ``per_km`` keeps every validation's parameters."""
+    run_dir = Path(run_dir)
+    path, best = run_dir / "evaluations.csv", run_dir / "best.json"
+    if rule != "per_km" or not path.exists() or not best.exists():
+        return False
+    records = [
+        {k: v.item() if hasattr(v, "item") else v for k, v in r.items()}
+        for r in pd.read_csv(path).to_dict(orient="records")
+    ]
+    first = min(reversed(records), key=lambda r: rank(r, rule))  # ties: the later
+    if first["episodes"] == json.loads(best.read_text())["episodes"]:
+        return False
+    write_atomic(run_dir / BEST_MODEL, (run_dir / validation_model(first["episodes"])).read_bytes())
+    write_atomic(best, json.dumps(first, indent=1))
+    return True
 
 
 def _figures(episodes: pd.DataFrame, policy_frequency: int | None = None) -> dict[str, float]:

@@ -32,7 +32,9 @@ def constrained_score(
     collisions: float, speed: float, idle_speed: float, floor: float = SPEED_FLOOR
 ) -> float:
     """Lower is better: the collisions (% of episodes, or per 100 km) of a policy whose mean
-    speed reaches ``floor`` x idle's on the same episodes; below that, 100 + the shortfall in %
-    of the floor, so any policy fast enough ranks above any that is not."""
+    speed reaches ``floor`` x idle's on the same episodes, at most 100; below that, 100 + the
+    shortfall in % of the floor, so any policy fast enough ranks above any that is not. (Per
+    100 km has no ceiling of its own: a rate of 100 or more, a collision every kilometre,
+    scores 100, and the faster of two such ranks first where the caller breaks ties.)"""
     need = floor * idle_speed
-    return collisions if speed >= need else 100.0 + 100.0 * (need - speed) / need
+    return min(collisions, 100.0) if speed >= need else 100.0 + 100.0 * (need - speed) / need

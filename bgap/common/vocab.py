@@ -57,6 +57,10 @@ SPEED_FLOOR = 0.9
 """A policy beats the idle ego when it crashes less at a mean speed of at least this fraction
 of idle's on the same episodes: safety bought by crawling is no win (ours). The
 same rule ranks recipe candidates (:func:`bgap.common.scores.constrained_score`)."""
+FLOOR_BAND = 0.05
+"""A training's checkpoint rule counts :data:`SPEED_FLOOR` as met within this fraction below
+it (ours): one training's validation speeds spread over a few m/s, and a floor at the edge
+of that spread would keep whichever validation scraped over it, whatever it crashed."""
 ENDINGS = ("timeout", "rear_end", "rear_ended", "lane_change", "other")
 """How an episode ended: it ran its full duration; the ego ran into a vehicle ahead; a
 vehicle ran into the ego from behind; contact during or within 2 s after an ego lane change;

@@ -53,8 +53,8 @@ class ProfileConfig:
     """Which validation a training keeps as ``best_model.zip``: ``return``, the highest mean
     validation return (SB3's ``EvalCallback``), validated on ``val_seed + k``; ``per_km``, the
     fewest collisions per 100 km among validations at least ``SPEED_FLOOR`` x the slower of
-    the idle and rule-based egos' speeds on the same episodes (ties: the faster, then the
-    later; :func:`bgap.agents.monitor.rank`),
+    the idle and rule-based egos' speeds on the same episodes, within ``FLOOR_BAND`` below it
+    (ties: the faster, then the later; :func:`bgap.agents.monitor.rank`),
     validated on :data:`CHECKPOINT_SEED` + k, with every validation's parameters kept in
     ``validations/``."""
 

@@ -15,6 +15,7 @@ from omegaconf import OmegaConf
 from bgap.agents.attention import EgoAttention
 from bgap.agents.dqn import DQN
 from bgap.agents.monitor import (
+    choose_again,
     recover_checkpoint,
 )
 from bgap.agents.observation import MODEL_ATTRIBUTE
@@ -196,8 +197,9 @@ def model_class(algo: str) -> type:
 def open_run_dir(cfg: ExperimentConfig, run_dir: Path | None = None) -> tuple[Path, str]:
     """The run folder of training ``cfg`` (its config and command saved) and what to do in
     it: ``new``, ``resume`` (a checkpoint and resume=true) or ``finished`` (model.zip is
-    written last). A folder of another training is refused, naming what differs; an
-    unfinished one without resume=true too."""
+    written last; its kept checkpoint chosen again under today's rule,
+    :func:`~bgap.agents.monitor.choose_again`). A folder of another training is refused,
+    naming what differs; an unfinished one without resume=true too."""
     run_dir = run_dir or run_dir_for(cfg)
     ckpt = run_dir / "checkpoints"
     recover_checkpoint(run_dir)  # a kill in the middle of writing one
@@ -205,6 +207,7 @@ def open_run_dir(cfg: ExperimentConfig, run_dir: Path | None = None) -> tuple[Pa
     # behaviour preset).
     save_run_metadata(run_dir, OmegaConf.structured(cfg), ignore=NOT_LEARNT, upgrade=upgrade)
     if (run_dir / "model.zip").exists():
+        choose_again(run_dir, cfg.profile.checkpoint_rule)  # under today's rule
         return run_dir, "finished"  # also with resume=true, which bgap.run always passes
     if (ckpt / CHECKPOINT_STATE).exists():
         if not cfg.resume:

@@ -24,7 +24,7 @@ from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, check
 from bgap.common.runs import CONFIG, MODEL, model_file, run_folders, write_atomic
 from bgap.common.tables import read_table
-from bgap.common.vocab import SPEED_FLOOR
+from bgap.common.vocab import FLOOR_BAND, SPEED_FLOOR
 from bgap.experiments.config import CHECKPOINTS
 from bgap.experiments.evaluate_policies import run_records, validation_block
 from bgap.runner.locks import exclusive
@@ -130,7 +130,7 @@ def _rule(cfg: dict[str, Any]) -> str:
     rule, first, n = validation_block(cfg)
     how = (
         f"the fewest collisions per 100 km at {SPEED_FLOOR} x the slower of the idle and "
-        "rule-based egos' speeds or more (ties: the faster)"
+        f"rule-based egos' speeds or more, within {FLOOR_BAND:.0%} below it (ties: the faster)"
         if rule == "per_km"
         else "the highest mean return"
     )
