@@ -15,8 +15,8 @@ import yaml
 
 ROOT = Path(__file__).resolve().parent.parent
 MADE_BY_A_STAGE = ("behavior/calibrated", "reward/recipe", "agent/recipe", "cmetric/tuned")
-"""Presets that stages write into ``bgap/conf``: removed from the copy so that the stages
-must write them again."""
+"""Presets that stages write into ``results/presets``: left out of the copy so that the stages
+must write them again (the copy keeps the pipeline's other presets)."""
 
 
 def run(args: list[str], cwd: Path) -> str:
@@ -37,6 +37,7 @@ def make_repo(repo: Path, stages: set[str], edit: Callable[[dict], None]) -> Pat
 
     warm_compiled_kernels()  # the copy below keeps numba's cache: no compiling per stage
     shutil.copytree(ROOT / "bgap", repo / "bgap")
+    shutil.copytree(ROOT / "results/presets", repo / "results/presets")
     shutil.copy(ROOT / ".dvcignore", repo / ".dvcignore")
     pipeline = yaml.safe_load((ROOT / "dvc.yaml").read_text())
     missing = stages - set(pipeline["stages"])
@@ -46,7 +47,7 @@ def make_repo(repo: Path, stages: set[str], edit: Callable[[dict], None]) -> Pat
         stage.pop("frozen", None)  # the copy makes every preset afresh, the recipe's too
     (repo / "dvc.yaml").write_text(yaml.safe_dump(pipeline, sort_keys=False))
     for name in MADE_BY_A_STAGE:
-        (repo / f"bgap/conf/{name}.yaml").unlink(missing_ok=True)
+        (repo / f"results/presets/{name}.yaml").unlink(missing_ok=True)
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
     edit(params)
     (repo / "params.yaml").write_text(yaml.safe_dump(params))

@@ -6,12 +6,15 @@ import os
 import shutil
 import subprocess
 import sys
+import tomllib
 import zipfile
 from pathlib import Path
 
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+PIPELINE = sorted((ROOT / "results/presets").rglob("*.yaml"))
+"""The presets the pipeline's stages wrote."""
 
 
 def _run(args: list[str], cwd: Path, env: dict) -> str:
@@ -44,6 +47,7 @@ def installed(tmp_path_factory) -> tuple[Path, dict]:
     env = {**os.environ, "PYTHONPATH": ""}
     source = tmp_path / "source"  # setuptools builds in the source folder: use a copy
     shutil.copytree(ROOT / "bgap", source / "bgap", ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "results/presets", source / "results/presets")  # the pipeline's
     for name in ("pyproject.toml", "README.md"):
         shutil.copy(ROOT / name, source / name)
     _run(
@@ -66,6 +70,7 @@ def installed(tmp_path_factory) -> tuple[Path, dict]:
     names = zipfile.ZipFile(wheel).namelist()
     assert "bgap/conf/run.yaml" in names and "bgap/conf/behavior/paper.yaml" in names
     assert "bgap/experiments/sweeps/reward.yaml" in names
+    assert "bgap/presets/behavior/calibrated.yaml" in names  # results/presets, shipped
     site = tmp_path / "site"
     zipfile.ZipFile(wheel).extractall(site)
     _reuse_compiled_kernels(site)
@@ -79,12 +84,29 @@ def test_the_installed_package_ships_its_configuration(installed, tmp_path):
     site, env = installed
     shipped = {p.relative_to(site) for p in (site / "bgap").rglob("*.yaml")}
     ours = {p.relative_to(ROOT) for p in (ROOT / "bgap").rglob("*.yaml")}
+    ours |= {"bgap/presets" / p.relative_to(ROOT / "results/presets") for p in PIPELINE}
     assert ours <= shipped, sorted(ours - shipped)
     where = _run([sys.executable, "-c", "import bgap; print(bgap.__file__)"], tmp_path, env)
     assert str(site) in where
     args = ["episodes=1", "env.duration=2", "backend=vector", "out=sim"]
     _run([sys.executable, "-m", "bgap.simulate", *args], tmp_path, env)
     assert "name: paper" in (tmp_path / "sim/config.yaml").read_text()
+    # a preset the pipeline wrote (results/presets in the checkout) is found in the wheel's
+    calibrated = [*args[:-1], "out=sim_calibrated", "behavior=calibrated"]
+    _run([sys.executable, "-m", "bgap.simulate", *calibrated], tmp_path, env)
+    assert "name: calibrated" in (tmp_path / "sim_calibrated/config.yaml").read_text()
+
+
+def test_the_wheel_lists_every_package():
+    """pyproject.toml lists the packages (setuptools' finder cannot map results/presets into
+    the wheel): every package under bgap/ is listed, and bgap.presets."""
+    listed = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    found = {
+        ".".join(p.parent.relative_to(ROOT).parts) for p in (ROOT / "bgap").rglob("__init__.py")
+    }
+    assert listed == found | {"bgap.presets"}
 
 
 @pytest.mark.slow

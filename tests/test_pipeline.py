@@ -72,7 +72,7 @@ def test_every_stage_writes_outputs_consistent_with_its_inputs(pipeline):
     ):
         assert (pipeline / name).stat().st_size > 0, name
     # calibrate: the preset it wrote is a valid behaviour preset, within the searched bounds
-    preset = load_preset(BehaviorConfig, pipeline / "bgap/conf/behavior/calibrated.yaml")
+    preset = load_preset(BehaviorConfig, pipeline / "results/presets/behavior/calibrated.yaml")
     scores = json.loads((pipeline / "results/calibration/scores.json").read_text())
     assert scores["trials"] == {"aggressive": 2 * 3, "conservative": 2 * 3}  # 2 x 3 rounds
     assert 0.5 <= preset.aggressive.time_gap <= 2.5 and 20 <= preset.aggressive.v0 <= 45

@@ -46,7 +46,7 @@ def test_cmetric_search_scores_every_table_and_writes_a_valid_preset(pipeline):
         ("sparse-paper-mix80", "search"), ("sparse-paper-mix80", "validation"),
         ("sumo-krauss-dense", "validation"),
     }  # fmt: skip
-    tuned = load_preset(CMetricConfig, pipeline / "bgap/conf/cmetric/tuned.yaml")
+    tuned = load_preset(CMetricConfig, pipeline / "results/presets/cmetric/tuned.yaml")
     assert tuned.name == "tuned"
     # the written preset is the one the report scored: SUMO's table rescored with it here
     # gives the report's AUC (pairwise comparison of every aggressive and conservative
@@ -81,11 +81,11 @@ def test_the_class_boundary_is_fixed_on_the_tuned_scores_of_bgaps_tables(pipelin
     from bgap.cmetric.params import CMetricConfig
     from bgap.common.presets import load_preset
 
-    fixed = load_preset(ClassBoundary, pipeline / "bgap/conf/cmetric/boundary/tuned.yaml")
+    fixed = load_preset(ClassBoundary, pipeline / "results/presets/cmetric/boundary/tuned.yaml")
     assert len(fixed.tables) == 2 and fixed.cmetric == "tuned"
     report = json.loads((pipeline / "results/cmetric/boundary/boundary.json").read_text())
     assert report["boundary"] == fixed.boundary
-    tuned = load_preset(CMetricConfig, pipeline / "bgap/conf/cmetric/tuned.yaml")
+    tuned = load_preset(CMetricConfig, pipeline / "results/presets/cmetric/tuned.yaml")
     tables = sorted((pipeline / "outputs/pipeline/cmetric_data").rglob("trajectories.parquet"))
     scored = labelled_scores(tables, tuned)
     even = scored[scored.episode.astype(int) % 2 == 0]

@@ -245,6 +245,27 @@ def test_relock_compares_a_moved_output_at_its_new_place(tmp_path):
     assert "extra.txt" in differing(trees, base, [*head, Path("extra.txt")], moves)
 
 
+def test_relock_reads_a_moved_path_in_a_runs_settings_at_its_new_place(tmp_path):
+    """A run's ``config.yaml`` that names a moved preset (``preset: bgap/conf/rule/x.yaml``)
+    is the same setting as the head's at the new place; another value still differs."""
+    from tools.relock import differing
+
+    trees = {"base": tmp_path / "base", "head": tmp_path / "head"}
+    for tree, preset in ((trees["base"], "bgap/conf"), (trees["head"], "results/presets")):
+        (tree / "out").mkdir(parents=True)
+        (tree / "out/config.yaml").write_text(
+            f"preset_dir: {preset}\npreset: {preset}/rule/dense.yaml\ntrials: 60\nenv: dense\n"
+        )
+    files = [Path("out/config.yaml")]
+    moves = {"bgap/conf": "results/presets"}
+    assert differing(trees, files, files, moves) == []
+    assert differing(trees, files, files) == ["out/config.yaml"]
+    (trees["head"] / "out/config.yaml").write_text(
+        "preset_dir: results/presets\npreset: results/presets/rule/dense.yaml\ntrials: 61\n"
+    )
+    assert differing(trees, files, files, moves) == ["out/config.yaml"]
+
+
 def _study(root: Path, chosen: list[int], lane_changes: float, verdict: str) -> Path:
     """A study's committed results in miniature: the main arm's two sparse behaviour-rich
     policies kept at ``chosen`` of 3,000 episodes, their episodes, a sparse row against the

@@ -332,7 +332,7 @@ TB_EVENTS = "events.out.tfevents"
 """TensorBoard's event files: named by wall time, host and process, and holding wall times."""
 
 
-def _same(a: Path, b: Path) -> bool:
+def _same(a: Path, b: Path, moved: dict[str, str] | None = None) -> bool:
     """Whether two output files hold the same result. Byte for byte, but for zip archives
     (Stable-Baselines3's models), whose members are compared rather than the archives: each
     entry carries the time it was written, and SB3's ``data`` holds what no seed fixes
@@ -344,12 +344,14 @@ def _same(a: Path, b: Path) -> bool:
     training checkpoint's ``state.pkl`` (counters, running statistics, the environments'
     state), which may gain fields that later code keeps, and SB3's replay buffer
     (``replay.pkl``), compared by its fields (:func:`_kept`). A ``command.txt`` names the
-    same program: its arguments follow the stage's command, which the lock records."""
+    same program: its arguments follow the stage's command, which the lock records. A path
+    that ``moved`` moved, as a setting's value, is read at its new place."""
     if a.name == b.name == COMMAND:  # the command that made it: the stage's cmd, whose
         # form may change with the code (the lock records it); the program must be the same
         return a.read_text().split()[:3] == b.read_text().split()[:3]
     if a.name == CONFIG and b.name == CONFIG:
-        return _kept(yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text()))
+        old = _moved_values(yaml.safe_load(a.read_text()), moved or {})
+        return _kept(old, yaml.safe_load(b.read_text()))
     if a.name == b.name == MODELS:
         with a.open(newline="") as fa, b.open(newline="") as fb:
             return _records_kept(list(csv.DictReader(fa)), list(csv.DictReader(fb)))
@@ -436,6 +438,20 @@ def _kept(old: Any, new: Any) -> bool:
     return bool(old == new)
 
 
+def _moved_values(tree: Any, moved: dict[str, str]) -> Any:
+    """``tree`` (a run's settings) with every string that names a path ``moved`` moved
+    replaced by its new place (:func:`moved_to`)."""
+    if isinstance(tree, dict):
+        return {k: _moved_values(v, moved) for k, v in tree.items()}
+    if isinstance(tree, list):
+        return [_moved_values(v, moved) for v in tree]
+    if isinstance(tree, str) and any(
+        tree.rstrip("/") == o.rstrip("/") or tree.startswith(o.rstrip("/") + "/") for o in moved
+    ):
+        return moved_to(Path(tree), moved).as_posix()
+    return tree
+
+
 def _unaddressed(data: bytes) -> bytes:
     return re.sub(rb" at 0x[0-9a-f]+", b" at 0x", data)
 
@@ -520,7 +536,7 @@ def differing(
         if f not in base
         or not (trees["base"] / base[f]).is_file()
         or not (trees["head"] / f).is_file()
-        or not _same(trees["base"] / base[f], trees["head"] / f)
+        or not _same(trees["base"] / base[f], trees["head"] / f, moved)
     ]
     for d in sorted(events):
         old = next((b.parent for h, b in base.items() if h.parent == d), d)

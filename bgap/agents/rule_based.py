@@ -25,13 +25,14 @@ must beat the threshold), IDLE otherwise.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.common.errors import ConfigError
-from bgap.common.presets import load_preset, preset_path
+from bgap.common.presets import PIPELINE_DIR, load_preset, preset_path
 from bgap.traffic.road import EGO_MAX_SPEED, FASTER, IDLE, LANE_LEFT, LANE_RIGHT, LANE_WIDTH, SLOWER
 
 # highway-env's normalisation of the Kinematics observation (KinematicObservation.normalize_obs)
@@ -181,8 +182,8 @@ class RuleBasedEgo:
 
 
 SITUATIONS = ("sparse", "dense", "stock")
-"""The tuned rule's presets (``bgap/conf/rule/<situation>.yaml``): one per density of
-bgap's traffic, one for highway-env's stock traffic (both densities)."""
+"""The tuned rule's presets (the pipeline's ``results/presets/rule/<situation>.yaml``): one
+per density of bgap's traffic, one for highway-env's stock traffic (both densities)."""
 
 
 @dataclass(frozen=True)
@@ -210,8 +211,8 @@ def tuned(config: dict[str, Any]) -> RuleParams:
             return RuleParams(**{f.name: getattr(preset, f.name) for f in fields(RuleParams)})
     traffic = "stock traffic" if stock else f"{rows} observed vehicles"
     raise ConfigError(
-        f"rule_tuned has no tuned preset for {traffic} in bgap/conf/rule; tune one with "
-        "python -m bgap.tune_rule (dvc repro tune_rule), or leave rule_tuned out of baselines"
+        f"rule_tuned has no tuned preset for {traffic} in {Path(PIPELINE_DIR) / 'rule'}; tune "
+        "one with dvc repro tune_rule, or leave rule_tuned out of baselines"
     )
 
 

@@ -42,8 +42,9 @@ class BoundaryConfig:
     """Labelled trajectory tables, or folders holding ``trajectories.parquet`` files (the
     pipeline: its ``cmetric_data``)."""
     cmetric_preset: str = "tuned"
-    """The CMetric preset the tables are scored with (``bgap/conf/cmetric``; a field of its
-    own name, since ``cmetric=`` picks that config group in the other commands)."""
+    """The CMetric preset the tables are scored with (``bgap/conf/cmetric``, or the pipeline's
+    ``tuned`` in ``results/presets/cmetric``; a field of its own name, since ``cmetric=``
+    picks that config group in the other commands)."""
     out: str = "outputs/cmetric_boundary"
     """The report folder."""
     preset: Optional[str] = None

@@ -18,7 +18,6 @@ import math
 import sys
 import warnings
 from collections.abc import Callable, Iterable
-from pathlib import Path
 from typing import Any
 
 import hydra
@@ -30,7 +29,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from bgap.common.cli import run
 from bgap.common.errors import ConfigError, check
-from bgap.common.presets import CONF_DIR
+from bgap.common.presets import CONF_DIR, PIPELINE_DIR, group_options, is_group
 
 Schema = tuple[Any, str, type]
 """A ConfigStore entry: (group or None, name, dataclass)."""
@@ -44,6 +43,8 @@ def register_configs(schemas: Iterable[Schema]) -> None:
     warnings.filterwarnings(
         "ignore", message=r"provider=hydra\.searchpath in main, path=.* is not available"
     )
+    if not OmegaConf.has_resolver("bgap.presets"):  # the search path's ${bgap.presets:}
+        OmegaConf.register_new_resolver("bgap.presets", lambda: PIPELINE_DIR)
     _store_schemas(tuple(schemas))
 
 
@@ -90,10 +91,24 @@ def compose(config_name: str, overrides: list[str] | None, schemas: Iterable[Sch
     """Compose a config from the packaged ``conf/`` with command-line style overrides,
     outside any Hydra app (tests, Optuna trials). Unknown keys and wrong types raise here."""
     register_configs(schemas)
+    overrides = keep_pipeline_presets(list(overrides or []))
     if GlobalHydra.instance().is_initialized():  # inside a Hydra app (its search path: conf/)
         return hydra_compose(config_name=config_name, overrides=list(overrides or []))
     with initialize_config_dir(config_dir=CONF_DIR, version_base="1.3"):
         return hydra_compose(config_name=config_name, overrides=list(overrides or []))
+
+
+def keep_pipeline_presets(overrides: list[str]) -> list[str]:
+    """``overrides`` with the pipeline's presets kept first on a search path that one of
+    them sets (``hydra.searchpath=[file://...]`` replaces the primary config's list, and
+    the main job's defaults, ``reward=recipe agent=recipe``, live there)."""
+    key = "hydra.searchpath=["
+    return [
+        f"{key}file://{PIPELINE_DIR}," + o[len(key) :]
+        if o.startswith(key) and PIPELINE_DIR not in o and o != f"{key}]"
+        else o
+        for o in overrides
+    ]
 
 
 def load(cfg: DictConfig) -> Any:
@@ -146,14 +161,9 @@ def _refuse_ignored(arg: str) -> None:
     )
 
 
-def _is_group(key: str) -> bool:
-    """Whether ``key`` names a preset group of the packaged config (``env``, ``behavior``)."""
-    return "." not in key and (Path(CONF_DIR) / key).is_dir()
-
-
 def _refuse_removed(arg: str) -> None:
     group = arg[1:].split("=")[0]
-    names = sorted(p.stem for p in (Path(CONF_DIR) / group).glob("*.yaml"))
+    names = group_options(group)
     raise ConfigError(
         f"{arg} removes the {group} preset, which this command needs: choose one instead "
         f"({group}={'|'.join(names)})"
@@ -209,13 +219,14 @@ def app(
             ignored = [a for a in args if a.split("=")[0].lstrip("+~") in IGNORED_BY_HYDRA]
             if ignored:  # switched off in every config: bgap names its folders itself
                 return run(prog, lambda: _refuse_ignored(ignored[0]), on_interrupt)
-            removed = [a for a in args if a.startswith("~") and _is_group(a[1:].split("=")[0])]
+            removed = [a for a in args if a.startswith("~") and is_group(a[1:].split("=")[0])]
             if removed:  # the schema's default would stand in for the preset, unsaid
                 return run(prog, lambda: _refuse_removed(removed[0]), on_interrupt)
             if args in (["--help"], ["-h"]) and (text := _help_text(config_name)) is not None:
                 print(text)
                 raise SystemExit(0)
             if any(a.startswith(("-", "hydra.", "hydra/", "+hydra", "~hydra")) for a in args):
+                sys.argv[1:] = keep_pipeline_presets(args)
                 return hydra_task()
             return run(prog, lambda: task(compose(config_name, args, schemas)), on_interrupt)
 

@@ -1,12 +1,17 @@
-"""Preset files: the configuration shipped inside the package, and presets users write.
+"""Preset files: the configuration shipped inside the package, the presets the pipeline
+writes, and presets users write.
 
 Hydra composes every command from ``bgap/conf`` (package data, so a non-editable install
-finds it). Presets written by a run of ``bgap.calibrate`` or ``bgap.sweep`` go under that
-run's output folder, ``<root>/presets/<group>/<name>.yaml``; Hydra finds them through its
-search path, which every command's primary config extends with
-``${oc.env:BGAP_PRESETS,outputs/presets}`` (so the default root needs nothing more;
-another folder: ``BGAP_PRESETS=/path/presets`` or ``hydra.searchpath=[file:///path/presets]``).
-A packaged preset of the same name wins, so the pipeline's presets cannot be shadowed.
+finds it). The presets the pipeline's DVC stages write (the calibrated drivers, the recipes,
+the tuned CMetric and rule-based ego) live outside the package, in ``results/presets`` of
+the checkout (:data:`PIPELINE_DIR`; a wheel ships them as ``bgap/presets``), so that an
+installed bgap never changes. Presets written by a user's run of ``bgap.calibrate`` or
+``bgap.sweep`` go under that run's output folder, ``<root>/presets/<group>/<name>.yaml``.
+Hydra finds both through its search path, which every command's primary config extends with
+``${bgap.presets:}`` (the pipeline's) and then ``${oc.env:BGAP_PRESETS,outputs/presets}``
+(the default root needs nothing more; another folder: ``BGAP_PRESETS=/path/presets`` or
+``hydra.searchpath=[file:///path/presets]``). A packaged or pipeline preset of the same name
+comes first, so the pipeline's presets cannot be shadowed.
 """
 
 from __future__ import annotations
@@ -23,9 +28,31 @@ CONF_DIR = str(Path(__file__).resolve().parent.parent / "conf")
 """The packaged configuration: Hydra's primary config folder."""
 
 
+def _pipeline_dir() -> Path:
+    shipped = Path(CONF_DIR).parent / "presets"  # a wheel (pyproject.toml: package-dir)
+    return shipped if shipped.is_dir() else Path(CONF_DIR).parents[1] / "results" / "presets"
+
+
+PIPELINE_DIR = str(_pipeline_dir())
+"""The presets the pipeline's stages write: ``results/presets`` of the checkout, or the copy
+a wheel ships as ``bgap/presets``. On Hydra's search path after the packaged ones."""
+
+
 def preset_path(group: str, name: str) -> Path:
-    """The packaged preset ``<group>/<name>.yaml``."""
-    return Path(CONF_DIR) / group / f"{name}.yaml"
+    """The shipped preset ``<group>/<name>.yaml``: the pipeline's where it wrote one, else
+    the packaged one (which need not exist)."""
+    written = Path(PIPELINE_DIR) / group / f"{name}.yaml"
+    return written if written.exists() else Path(CONF_DIR) / group / f"{name}.yaml"
+
+
+def group_options(group: str) -> list[str]:
+    """The shipped presets of config group ``group`` (packaged and the pipeline's)."""
+    return sorted({p.stem for d in (CONF_DIR, PIPELINE_DIR) for p in Path(d, group).glob("*.yaml")})
+
+
+def is_group(key: str) -> bool:
+    """Whether ``key`` names a shipped preset group (``env``, ``behavior``, ``rule``)."""
+    return "." not in key and any(Path(d, key).is_dir() for d in (CONF_DIR, PIPELINE_DIR))
 
 
 def load_preset(schema: type, path: str | Path) -> Any:
@@ -82,8 +109,8 @@ def selection_hint(group: str, path: str | Path) -> str:
         return hint
     if preset_path(group, name).exists():
         return (
-            f"{hint} selects the packaged preset of that name, which shadows this file: "
-            "write it under another name"
+            f"{hint} selects the shipped preset of that name (packaged or the pipeline's), "
+            "which shadows this file: write it under another name"
         )
     folder = path.parent.parent
     default = (Path.cwd() / "outputs" / "presets").resolve()

@@ -372,10 +372,10 @@ class RecipeConfig(SweepConfig):
     """Validation episodes per candidate and seed (the same for the idle and rule egos)."""
     preset_dir: Optional[str] = None
     """Where the chosen ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` go;
-    default ``<root>/presets`` (the pipeline's stage: ``bgap/conf``)."""
+    default ``<root>/presets`` (the pipeline's stage: ``results/presets``)."""
     preset_name: str = "user_recipe"
     """Name of the written presets (``reward=user_recipe agent=user_recipe``); the pipeline's
-    stage writes the packaged ``recipe``, which a user's preset must not shadow."""
+    stage writes the pipeline's ``recipe``, which a user's preset must not shadow."""
     stock_check: bool = False
     """Also train each candidate's default policy (highway-env's stock traffic) with every
     check seed, and rank the candidates whose default policy misses the stock rule (fewer

@@ -25,7 +25,7 @@ Three steps, all on validation episodes (seeds ``val_seed + k``; the test episod
 3. **Presets**: the chosen candidate's reward and agent groups as
    ``reward/<preset_name>.yaml`` and ``agent/<preset_name>.yaml`` under ``preset_dir``
    (default ``<root>/presets/.../user_recipe.yaml``, then ``reward=user_recipe
-   agent=user_recipe``; the pipeline's stage writes ``bgap/conf/.../recipe.yaml``, the
+   agent=user_recipe``; the pipeline's stage writes ``results/presets/.../recipe.yaml``, the
    default of ``bgap.run`` and ``bgap.train``).
 
 Outputs under ``out`` (default ``<root>/recipe``): ``sweep/trials.csv`` and ``pareto.png``

@@ -14,8 +14,9 @@ on kilometres); ties go to the faster. Trial 0 is highway-env's defaults (the ba
 ``tune_seed + k`` (70000 + k) lie apart from every other search's validation episodes
 (``val_seed`` 50000 + k) and from the tests' (``eval_seed`` 100000 + k).
 
-Writes the preset ``bgap/conf/rule/<situation>.yaml`` that the baseline ``rule_tuned`` plays
-(:func:`bgap.agents.rule_based.tuned`), and into ``out``: ``trials.csv`` (every trial's
+Writes the preset ``preset`` (default ``<root>/presets/rule/<situation>.yaml``; the pipeline's
+stage writes ``results/presets/rule/<situation>.yaml``, which the baseline ``rule_tuned``
+plays: :func:`bgap.agents.rule_based.tuned`), and into ``out``: ``trials.csv`` (every trial's
 parameters and figures) and ``search.png`` (the objective by trial, the defaults marked).
 """
 
@@ -36,7 +37,7 @@ from bgap.agents.rule_based import DEFAULT, SITUATIONS, RuleParams, TunedRule, r
 from bgap.common.config import app, load
 from bgap.common.errors import check, check_apart
 from bgap.common.plotting import pyplot
-from bgap.common.presets import check_owner, preset_path, write_preset
+from bgap.common.presets import check_owner, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.common.scores import collisions_per_100km, constrained_score, episode_distance
 from bgap.common.vocab import SPEED_FLOOR
@@ -73,7 +74,8 @@ class TuneRuleConfig(ExperimentConfig):
     tune_seed: int = 70_000
     """Episode k of every cell is seeded tune_seed + k."""
     preset: str = ""
-    """Where the preset goes; default the packaged ``bgap/conf/rule/<situation>.yaml``."""
+    """Where the preset goes; default ``<root>/presets/rule/<situation>.yaml`` (the pipeline's
+    stage: ``results/presets/rule/<situation>.yaml``, the one ``rule_tuned`` plays)."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -183,7 +185,7 @@ def plot(table: pd.DataFrame, path: Path, title: str) -> None:
 def run(cfg: TuneRuleConfig) -> Path:
     """Search, then write the trials, their plot and the chosen preset; returns the preset."""
     owner = f"bgap.tune_rule situation={cfg.situation}"
-    target = cfg.preset or preset_path("rule", cfg.situation)
+    target = cfg.preset or Path(cfg.root) / "presets" / "rule" / f"{cfg.situation}.yaml"
     check_owner(target, owner)  # before minutes of search, not after
     out = save_run_metadata(cfg.out or f"outputs/tune_rule/{cfg.situation}", cfg, upgrade=upgrade)
     table = search(cfg)

@@ -142,8 +142,10 @@ def commands_by_schema() -> dict[str, list[tuple[str, str]]]:
 
 
 def presets(group: str) -> list[str]:
-    folder = conf_dir() / group
-    return sorted(p.stem for p in folder.glob("*.yaml")) if folder.is_dir() else []
+    """The group's shipped presets: packaged, and the pipeline's (results/presets)."""
+    from bgap.common.presets import group_options
+
+    return group_options(group)
 
 
 # --------------------------------------------------------------------------------------
@@ -234,7 +236,7 @@ def render(cls: type, known: dict[str, type], underline: str) -> list[str]:
             text = f"Config group ``{group}``"
             if names:
                 text += ": presets " + ", ".join(f"``{group}={n}``" for n in names)
-                text += f" (``bgap/conf/{group}/``)"
+                text += f" (``bgap/conf/{group}/``, ``results/presets/{group}/``)"
             about.append(text + ".")
     bases = [b for b in cls.__bases__ if dataclasses.is_dataclass(b)]
     for base in bases:

@@ -1,7 +1,7 @@
 """A class boundary on CMetric's aggressiveness, fixed once on bgap's own labelled tables.
 
     python -m bgap.cmetric.boundary tables=[outputs/pipeline/cmetric_data] cmetric_preset=tuned \
-        out=results/cmetric/boundary preset=bgap/conf/cmetric/boundary/tuned.yaml
+        out=results/cmetric/boundary preset=results/presets/cmetric/boundary/tuned.yaml
 
 The boundary is the aggressiveness above which a vehicle reads aggressive: the threshold
 that maximises Youden's J (true minus false positive rate: balanced accuracy, whatever the
@@ -29,7 +29,8 @@ from bgap.common.presets import load_preset, preset_path
 from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE
 
 BOUNDARY_DIR = "cmetric/boundary"
-"""Where the packaged boundaries live: ``bgap/conf/cmetric/boundary/<cmetric preset>.yaml``."""
+"""Where the pipeline's boundaries live:
+``results/presets/cmetric/boundary/<cmetric preset>.yaml``."""
 
 
 @dataclass
@@ -39,7 +40,8 @@ class ClassBoundary:
 
     name: str = "tuned"
     cmetric: str = "tuned"
-    """The CMetric preset (``bgap/conf/cmetric/<name>.yaml``) the scores come from."""
+    """The CMetric preset (``cmetric/<name>.yaml``, packaged or the pipeline's) the scores
+    come from."""
     boundary: float = 0.0
     balanced_accuracy: float = float("nan")
     """On the odd (validation) episodes; the tuning episodes' is in ``boundary.json``."""

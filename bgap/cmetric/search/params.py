@@ -65,7 +65,7 @@ class CMetricSearchConfig:
     rerun on other data starts a new study instead of mixing trials."""
     preset: Optional[str] = None
     """Where the tuned preset goes; default ``<out>/presets/cmetric/user_tuned.yaml``
-    (the pipeline's stage: ``bgap/conf/cmetric/tuned.yaml``)."""
+    (the pipeline's stage: ``results/presets/cmetric/tuned.yaml``)."""
 
     def __post_init__(self) -> None:
         for key in ("data_dir", "validation_dir"):
