@@ -378,6 +378,22 @@ def test_a_run_folder_of_other_settings_is_refused(tmp_path, monkeypatch, capsys
     assert status == 2 and "data holds a result of other settings: mix (0.2 there, 0.8 now)" in err
 
 
+def test_a_finished_training_saved_before_later_settings_is_reused(tmp_path, monkeypatch, capsys):
+    """A run folder whose stored config predates settings added since (a replay's
+    ``traffic.scenes``, the ``traffic.mixture``, the checkpoint rule) reads them at the value
+    its training had, so rerunning its command reuses it rather than refusing it."""
+    monkeypatch.chdir(tmp_path)
+    args = ["profile=tiny", "run_dir=run"]
+    assert _command("train", args, monkeypatch, capsys)[0] == 0
+    config = tmp_path / "run/config.yaml"
+    later = ("  scenes: all", "  mixture: null", "  checkpoint_rule: return")
+    lines = config.read_text().splitlines()
+    assert all(line in lines for line in later)
+    config.write_text("\n".join(line for line in lines if line not in later) + "\n")
+    status, err = _command("train", args, monkeypatch, capsys)
+    assert status == 0, err
+
+
 def test_a_users_calibration_and_sweep_write_only_under_their_root(tmp_path, monkeypatch, capsys):
     """With root= in a temporary folder, the repository's git status stays clean."""
 

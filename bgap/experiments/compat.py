@@ -21,6 +21,8 @@ ADDED_LATER = {
     "reward.converged": True,
     "agent.converged": True,
     "profile.checkpoint_rule": "return",
+    "traffic.scenes": "all",
+    "traffic.mixture": None,
 }
 """Settings added after run folders were first written, with the value those runs used: a
 stored config without the key is read as having it."""
