@@ -245,6 +245,26 @@ def test_relock_compares_a_moved_output_at_its_new_place(tmp_path):
     assert "extra.txt" in differing(trees, base, [*head, Path("extra.txt")], moves)
 
 
+def test_relock_reads_each_trees_own_pipeline_for_a_stages_outputs(tmp_path, monkeypatch):
+    """A stage whose output moved between the base and the head is listed at each tree's own
+    place, whatever pipeline the working folder holds (DVC resolves a stage's name against
+    the working folder's dvc.yaml)."""
+    from tools.relock import _outputs
+
+    for name, out in (("base", "bgap/conf/rule"), ("head", "results/presets/rule")):
+        tree = tmp_path / name
+        (tree / out).mkdir(parents=True)
+        (tree / out / "dense.yaml").write_text("a: 1\n")
+        (tree / "dvc.yaml").write_text(
+            f"stages:\n  tune:\n    cmd: echo\n    outs:\n      - {out}\n"
+        )
+        subprocess.run(["dvc", "init", "-q", "--no-scm"], cwd=tree, check=True)
+    monkeypatch.chdir(tmp_path / "head")
+    assert _outputs(tmp_path / "base", "tune") == [Path("bgap/conf/rule/dense.yaml")]
+    monkeypatch.chdir(tmp_path / "base")
+    assert _outputs(tmp_path / "head", "tune") == [Path("results/presets/rule/dense.yaml")]
+
+
 def test_relock_reads_a_moved_path_in_a_runs_settings_at_its_new_place(tmp_path):
     """A run's ``config.yaml`` that names a moved preset (``preset: bgap/conf/rule/x.yaml``)
     is the same setting as the head's at the new place; another value still differs."""

@@ -12,6 +12,7 @@ byte-identical outputs (see :func:`relock`).
 from __future__ import annotations
 
 import ast
+import contextlib
 import csv
 import filecmp
 import json
@@ -297,7 +298,9 @@ def _outputs(tree: Path, stage: str) -> list[Path]:
     # Imported here: DVC's Python API takes ~1 s to import; only relocking needs it.
     from dvc.repo import Repo
 
-    with Repo(str(tree)) as repo:
+    # DVC resolves a stage's name against the dvc.yaml of the working folder, not the
+    # repository's: from another folder it would read that folder's pipeline.
+    with contextlib.chdir(tree), Repo(str(tree)) as repo:
         (found,) = repo.stage.collect(stage)
         paths = [tree / str(out.def_path) for out in found.outs]
     files: list[Path] = []
