@@ -348,13 +348,14 @@ def _same(a: Path, b: Path, moved: dict[str, str] | None = None) -> bool:
     state), which may gain fields that later code keeps, and SB3's replay buffer
     (``replay.pkl``), compared by its fields (:func:`_kept`). A ``command.txt`` names the
     same program: its arguments follow the stage's command, which the lock records. A path
-    that ``moved`` moved, as a setting's value, is read at its new place."""
+    that ``moved`` moved, as a setting's value, may be read at its new place (a frozen
+    stage's record keeps the old one)."""
     if a.name == b.name == COMMAND:  # the command that made it: the stage's cmd, whose
         # form may change with the code (the lock records it); the program must be the same
         return a.read_text().split()[:3] == b.read_text().split()[:3]
     if a.name == CONFIG and b.name == CONFIG:
-        old = _moved_values(yaml.safe_load(a.read_text()), moved or {})
-        return _kept(old, yaml.safe_load(b.read_text()))
+        old, new = yaml.safe_load(a.read_text()), yaml.safe_load(b.read_text())
+        return _kept(old, new) or _kept(_moved_values(old, moved or {}), new)
     if a.name == b.name == MODELS:
         with a.open(newline="") as fa, b.open(newline="") as fb:
             return _records_kept(list(csv.DictReader(fa)), list(csv.DictReader(fb)))
