@@ -31,6 +31,8 @@ _DONE = {
     "zoo@mix50-dense",
     "train@mix100-sparse",
     "zoo@mix100-sparse",
+    "train@mix100-dense",
+    "zoo@mix100-dense",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
