@@ -17,6 +17,10 @@ _ARMS = ["main", "authors", "mix0", "mix50", "mix100"]
 _LEARNERS = ["learner-dqn", "learner-qrdqn", "learner-ppo"]
 _DONE = {
     "evaluate_baselines",
+    "evaluate@main",
+    "evaluate@mix0",
+    "evaluate@mix50",
+    "evaluate@mix100",
     "train@main-dense",
     "zoo@main-dense",
     "train@main-sparse",
