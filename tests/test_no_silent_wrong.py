@@ -285,10 +285,11 @@ def test_generated_plus_and_tilde_overrides_are_refused_or_honoured(override):
 
     from bgap.common import config
     from bgap.common.errors import ConfigError
+    from bgap.common.presets import is_group
     from bgap.experiments.config import SCHEMAS
 
     key = override.lstrip("+~").split("=")[0]
-    if override.startswith("~") and config._is_group(key):
+    if override.startswith("~") and is_group(key):
         with pytest.raises(ConfigError, match="preset, which this command needs"):
             config._refuse_removed(override)
         return
