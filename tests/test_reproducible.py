@@ -37,6 +37,8 @@ _DONE = {
     "zoo@mix100-sparse",
     "train@mix100-dense",
     "zoo@mix100-dense",
+    "train_learner@learner-ppo-sparse",
+    "zoo@learner-ppo-sparse",
 }
 """Rerun stages whose new lock is committed."""
 RERUNNING: set[str] = (
