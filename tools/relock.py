@@ -449,10 +449,8 @@ def _moved_values(tree: Any, moved: dict[str, str]) -> Any:
         return {k: _moved_values(v, moved) for k, v in tree.items()}
     if isinstance(tree, list):
         return [_moved_values(v, moved) for v in tree]
-    if isinstance(tree, str) and any(
-        tree.rstrip("/") == o.rstrip("/") or tree.startswith(o.rstrip("/") + "/") for o in moved
-    ):
-        return moved_to(Path(tree), moved).as_posix()
+    if isinstance(tree, str) and (new := moved_to(Path(tree), moved)) != Path(tree):
+        return new.as_posix()  # other strings as they were (Path would normalise them)
     return tree
 
 
