@@ -37,7 +37,7 @@ from bgap.calibration.data import calibrate_to_data, observe
 from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
-from bgap.common.presets import selection_hint, user_preset, write_preset
+from bgap.common.presets import selection_hint, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
@@ -67,7 +67,8 @@ def report_dir(cfg: CalibrateAppConfig) -> Path:
 
 
 def preset_file(cfg: CalibrateAppConfig) -> Path:
-    return Path(cfg.calibrate.preset or user_preset(cfg.root, "behavior", "user_calibrated"))
+    default = Path(cfg.root) / "presets" / "behavior" / "user_calibrated.yaml"
+    return Path(cfg.calibrate.preset or default)
 
 
 def storage_url(cfg: CalibrateAppConfig) -> str:
