@@ -38,6 +38,8 @@ _DONE = {
     "train@mix100-dense",
     "zoo@mix100-dense",
     "train_learner@learner-ppo-sparse",
+    "train_learner@learner-ppo-dense",
+    "zoo@learner-ppo-dense",
     "zoo@learner-ppo-sparse",
 }
 """Rerun stages whose new lock is committed."""
