@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.calibration.calibrate")
+main = command("bgap.commands.calibrate")
 if __name__ == "__main__":
     main()

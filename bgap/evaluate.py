@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.evaluate")
+main = command("bgap.commands.evaluate")
 if __name__ == "__main__":
     main()

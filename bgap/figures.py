@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.analysis.figures")
+main = command("bgap.commands.figures")
 if __name__ == "__main__":
     main()

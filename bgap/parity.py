@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.parity")
+main = command("bgap.commands.parity")
 if __name__ == "__main__":
     main()

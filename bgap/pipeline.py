@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.pipeline")
+main = command("bgap.commands.pipeline")
 if __name__ == "__main__":
     main()

@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.recipe")
+main = command("bgap.commands.recipe")
 if __name__ == "__main__":
     main()

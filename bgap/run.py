@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.run")
+main = command("bgap.commands.run")
 if __name__ == "__main__":
     main()

@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.select")
+main = command("bgap.commands.select")
 if __name__ == "__main__":
     main()

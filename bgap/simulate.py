@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.datasets.simulate")
+main = command("bgap.commands.simulate")
 if __name__ == "__main__":
     main()

@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.sweep")
+main = command("bgap.commands.sweep")
 if __name__ == "__main__":
     main()

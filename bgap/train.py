@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.train")
+main = command("bgap.commands.train")
 if __name__ == "__main__":
     main()

@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.tune_rule")
+main = command("bgap.commands.tune_rule")
 if __name__ == "__main__":
     main()

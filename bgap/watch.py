@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.watch")
+main = command("bgap.commands.watch")
 if __name__ == "__main__":
     main()

@@ -1,5 +1,5 @@
 from bgap.runner.numerics import command
 
-main = command("bgap.experiments.zoo")
+main = command("bgap.commands.zoo")
 if __name__ == "__main__":
     main()

@@ -318,7 +318,7 @@ def test_command_writes_scores_and_plot(tmp_path, monkeypatch, capsys):
 
     def cmetric(*args):
         """The command in this process (its first run below is a real subprocess)."""
-        from bgap.cmetric.__main__ import main
+        from bgap.commands.cmetric import main
 
         monkeypatch.setattr(sys, "argv", ["bgap.cmetric", str(path), *args])
         try:

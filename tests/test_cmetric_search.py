@@ -104,7 +104,7 @@ def test_datasets_split_by_episode_parity_and_validation_data_never_tunes(data, 
 
 
 def test_search_runs_resumes_writes_a_preset_that_loads_everywhere(data, tmp_path, monkeypatch):
-    from bgap.cmetric.search.__main__ import run
+    from bgap.commands.cmetric_search import run
 
     out = tmp_path / "search"
     overrides = [f"data_dir={data}", f"out={out}", "seed=3"]

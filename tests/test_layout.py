@@ -88,18 +88,49 @@ def test_bgap_command_runs_the_same_program_as_python_m():
     assert outs[0].stderr == outs[1].stderr and "mix" in outs[0].stderr
 
 
-def test_top_level_holds_ten_domain_packages_the_runner_and_short_shims():
+def test_top_level_holds_ten_domain_packages_two_floors_and_short_shims():
     """Ten packages named after the domain (traffic, simulators, agents, CMetric, ...) and
-    ``runner``, the plumbing of where work runs: a floor of its own between ``common`` and
-    the agents (whose training monitor needs its Ctrl-C flag), which neither fits in the
-    ground floor (it needs Ray, process pools and torch's threads) nor in a domain
-    package."""
+    two floors that are no domain: ``runner``, the plumbing of where work runs, between
+    ``common`` and the agents (whose training monitor needs its Ctrl-C flag), which neither
+    fits in the ground floor (it needs Ray, process pools and torch's threads) nor in a
+    domain package; and ``commands``, the top floor, one module per command, so that no
+    library module carries a command line."""
     entries = [p for p in (ROOT / "bgap").iterdir() if p.name != "__pycache__"]
-    packages = [p.name for p in entries if p.is_dir() and p.name not in ("conf", "runner")]
+    floors = ("conf", "runner", "commands")
+    packages = [p.name for p in entries if p.is_dir() and p.name not in floors]
     assert len(packages) <= 10, packages
     for module in entries:
         if module.suffix == ".py" and module.name not in ("__init__.py", "__main__.py"):
             assert len(module.read_text().splitlines()) <= 5, module.name
+
+
+def test_only_the_commands_have_a_command_line():
+    """Every Hydra app (``@app``) and every ``main`` lives in :mod:`bgap.commands`, one module
+    per command of ``bgap``'s table; a library module has neither, and every other entry
+    (``bgap/<command>.py``, a package's ``__main__.py``) is a shim that names its command."""
+    import ast
+
+    from bgap.__main__ import COMMANDS
+
+    shims = {"__main__.py"} | {f"{m.rsplit('.', 1)[-1]}.py" for m, _ in COMMANDS.values()}
+    lines = []
+    for path in sorted((ROOT / "bgap").rglob("*.py")):
+        name = path.relative_to(ROOT / "bgap").as_posix()
+        if name.startswith("commands/") or name == "__main__.py":
+            continue
+        tree = ast.parse(path.read_text())
+        for node in tree.body:
+            decorators = getattr(node, "decorator_list", [])
+            apps = [
+                d for d in decorators if isinstance(d, ast.Call) and ast.unparse(d.func) == "app"
+            ]
+            if getattr(node, "name", None) == "main" or apps:
+                lines.append(f"{name}:{node.lineno}")
+        if path.name == "__main__.py" or (path.parent == ROOT / "bgap" and path.name in shims):
+            assert 'main = command("bgap.commands.' in path.read_text(), name
+    assert not lines, lines
+    commands = {p.stem for p in (ROOT / "bgap/commands").glob("*.py")} - {"__init__"}
+    assert commands == {name.replace(".", "_") for name in COMMANDS}
 
 
 KERNELS = {"bgap/sim/core.py"}
@@ -183,29 +214,22 @@ FORBIDDEN_IMPORTS = [
     ({"runner/__init__.py": "import bgap.agents", "agents/__init__.py": "import bgap.runner"},
      {FLOORS, CYCLES}),
     ({"cmetric/score.py": "import bgap.runner"}, {FLOORS}),
-    ({"cmetric/__main__.py": "import bgap.runner"}, set()),  # the CMetric command may
+    ({"cmetric/__main__.py": "import bgap.runner.numerics"}, set()),  # its entry may
+    ({"cmetric/__main__.py": "import bgap.runner.jobs"}, {FLOORS}),  # nothing more
+    ({"experiments/run.py": "import bgap.commands.run"}, {FLOORS, "commands-on-top", CYCLES}),
 ]  # fmt: skip
 
 
 @pytest.mark.parametrize(("edits", "broken"), FORBIDDEN_IMPORTS)
 def test_lint_imports_catches_a_forbidden_import(tmp_path, edits, broken):
     """A copy of the package with imports added: lint-imports finds exactly the contracts they
-    break (bgap.runner made in the copy where it does not exist yet)."""
+    break."""
     copy = _copy_of_the_project(tmp_path)
-    (copy / "bgap" / "runner").mkdir(exist_ok=True)
-    (copy / "bgap" / "runner" / "__init__.py").touch()
     for module, line in edits.items():
         target = copy / "bgap" / module
         target.parent.mkdir(exist_ok=True)
         target.write_text((target.read_text() if target.exists() else "") + f"\n{line}\n")
     assert _lint_imports(copy, pythonpath=copy) == broken
-
-
-def test_lint_imports_holds_without_the_planned_runner(tmp_path):
-    """bgap.runner is an optional floor (in parentheses): a tree without it is checked too."""
-    copy = _copy_of_the_project(tmp_path)
-    shutil.rmtree(copy / "bgap" / "runner", ignore_errors=True)
-    assert _lint_imports(copy, pythonpath=copy) == set()
 
 
 def test_every_stage_lists_exactly_the_code_its_command_runs(tmp_path):
@@ -243,7 +267,7 @@ def test_relock_refuses_a_stage_whose_rehearsal_outputs_changed(tmp_path):
     subprocess.run(["git", "clone", "-q", str(ROOT), str(repo)], check=True)
     lock = (repo / "dvc.lock").read_text()
     assert relock(["parity"], "HEAD", tmp_path / "same", repo) == {"parity": []}
-    parity = repo / "bgap/experiments/parity.py"
+    parity = repo / "bgap/commands/parity.py"
     text = parity.read_text()
     changed = text.replace(
         "lambda p: table.to_csv(p, index=False)", "lambda p: table.round(2).to_csv(p, index=False)"

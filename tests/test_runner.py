@@ -126,6 +126,14 @@ def _count_to(n: int, report) -> int:
     return n
 
 
+def _count_if_told(n: int, report=None) -> str:
+    if report is None:
+        return "here"
+    for i in range(1, n + 1):
+        report(i)
+    return "reported"
+
+
 def test_jobs_in_workers_report_their_counts_to_one_bar_each():
     """Two jobs in worker processes send their step counts through the bars' queue: each
     bar ends at its own job's total, and disabled bars hand out no reporter."""
@@ -136,3 +144,22 @@ def test_jobs_in_workers_report_their_counts_to_one_bar_each():
     assert out == [5, 7] and bars.counts == [5, 7]
     with JobBars(["a"], [1], enabled=False) as quiet:
         assert quiet.reporter(0) is None
+
+
+def test_run_jobs_draws_a_bar_per_job_in_workers_and_hands_none_here(capfd):
+    """``job_bars``: jobs in worker processes get a reporter and move their own bar to its
+    total; the same jobs run here get ``report=None`` (they may draw their own)."""
+    bars = [("a", 5), ("b", 7)]
+    out = run_jobs(_count_if_told, [(5,), (7,)], workers=2, job_bars=bars)
+    assert out == ["reported", "reported"]
+    drawn = "".join(capfd.readouterr())
+    assert "5/5" in drawn and "7/7" in drawn and "finished: a" in drawn, drawn
+    assert run_jobs(_count_if_told, [(5,), (7,)], workers=1, job_bars=bars) == ["here"] * 2
+    assert "5/5" not in capfd.readouterr().err
+
+
+def test_run_jobs_counts_finished_work_on_one_bar(capfd):
+    """``bar=(desc, unit, per_job)``: one bar moved ``per_job`` as each job finishes."""
+    assert run_jobs(_square_and_pid, [(2,), (3,)], bar=("squares", "sq", 4))[0][0] == 4
+    drawn = capfd.readouterr().err
+    assert "squares" in drawn and "8/8" in drawn, drawn

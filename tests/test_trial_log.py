@@ -11,7 +11,7 @@ from optuna.trial import TrialState
 from bgap.common.errors import ConfigError
 from bgap.common.studies import run_until
 from bgap.experiments import trial_log
-from bgap.experiments.pipeline import main
+from bgap.commands.pipeline import main
 
 
 def _objective(trial: optuna.Trial) -> float:

@@ -29,16 +29,13 @@ from typing import Any
 import numpy as np
 import optuna
 import pandas as pd
-from omegaconf import DictConfig
 
 from bgap.agents.policies import rollout
-from bgap.calibration.config import SCHEMAS, CalibrateAppConfig
-from bgap.calibration.data import calibrate_to_data, observe
+from bgap.calibration.config import CalibrateAppConfig
 from bgap.cmetric.score import label_auc, score_trajectories
-from bgap.common.config import app, load
 from bgap.common.plotting import pyplot
-from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import save_run_metadata, write_atomic
+from bgap.common.presets import write_preset
+from bgap.common.runs import write_atomic
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
 from bgap.traffic.behaviors import BehaviorConfig, DriverParams, paper_behavior
@@ -302,31 +299,3 @@ def calibrate(cfg: CalibrateAppConfig, progress: bool = True) -> dict[str, Any]:
     note = f"Written by python -m bgap.calibrate (targets: {targets}); {owner}"
     write_preset(behavior, "behavior", preset_file(cfg), note, owner)
     return write_outputs(cfg, studies, behavior, stats)
-
-
-@app(
-    "calibrate",
-    "bgap.calibrate",
-    SCHEMAS,
-    "every finished trial is kept in the Optuna study; rerun the same command to continue",
-)
-def main(dcfg: DictConfig) -> None:
-
-    cfg: CalibrateAppConfig = load(dcfg)
-    # a target table that cannot be read is refused before the folder is written, which would
-    # then refuse the corrected command as "other settings"
-    observed = observe(cfg) if cfg.calibrate.target else None
-    save_run_metadata(report_dir(cfg), dcfg)
-    if observed is not None:  # to a labelled table's statistics (bgap.calibrate_data)
-        summary = calibrate_to_data(
-            cfg, storage_url(cfg), preset_file(cfg), report_dir(cfg), observed=observed
-        )
-    else:
-        summary = calibrate(cfg)
-    print(json.dumps(summary, indent=2))
-    hint = selection_hint("behavior", preset_file(cfg))
-    print(f"preset: {preset_file(cfg)} (use: {hint}); report: {report_dir(cfg)}")
-
-
-if __name__ == "__main__":
-    main()

@@ -20,8 +20,6 @@ from pathlib import Path
 from typing import Any
 
 import pandas as pd
-from omegaconf import DictConfig
-from tqdm import tqdm
 
 from bgap.agents import zoo
 from bgap.agents.hybrid import Hybrid
@@ -34,34 +32,19 @@ from bgap.agents.policies import (
     model_path,
     rollout,
 )
-from bgap.analysis.episodes import MODELS
 from bgap.cmetric import boundary as classes
-from bgap.common.config import app, load
 from bgap.common.errors import ConfigError
 from bgap.common.presets import CONF_DIR
 from bgap.common.runs import (
     VOLATILE,
     digest,
-    save_run_metadata,
-    write_atomic,
 )
 from bgap.common.scores import episode_distance
 from bgap.common.vocab import BASELINES
-from bgap.experiments.compat import as_before, upgrade
-from bgap.experiments.config import SCHEMAS, ExperimentConfig
-from bgap.experiments.evaluate_policies import model_records, policy_specs
-from bgap.experiments.evaluate_results import (
-    MAX_BARS,
-    compact,
-    format_table,
-    plot_comparison,
-    summarize,
-    traffic_inputs,
-    write_results,
-)
+from bgap.experiments.compat import as_before
+from bgap.experiments.config import ExperimentConfig
 from bgap.runner.cluster import connected
 from bgap.runner.jobs import run_jobs
-from bgap.runner.locks import exclusive
 from bgap.traffic.replay import load_replay
 from bgap.traffic.scenario import env_config, env_preset
 from bgap.traffic.scenes import table_name
@@ -350,23 +333,23 @@ def _play(
     """Every job of :func:`evaluate` (:func:`bgap.runner.jobs.run_jobs`: here, in worker
     processes of one thread each, or as Ray tasks). One thread: a process's kernels and its
     policies' forward passes alternate, so a process with threads leaves cores idle."""
-    bar = tqdm(total=len(jobs) * chunk, unit="ep", desc="evaluate", disable=not progress)
-    if cfg.cluster.enabled:  # a model travels as its file's bytes
-        shipped = {name: _shippable(spec) for name, spec in policies.items()}
-        jobs = [(name, shipped[name], *rest) for name, _, *rest in jobs]
-    try:
-        parts = run_jobs(
-            _evaluate_job,
-            jobs,
-            workers=workers,
-            numba_threads=1,
-            cluster=cfg.cluster,
-            done=lambda k, part: bar.update(chunk),
-            kept="no episode was written; the same command plays them again",
-        )
-    finally:
-        bar.close()
+    parts = run_jobs(
+        _evaluate_job,
+        jobs,
+        workers=workers,
+        numba_threads=1,
+        cluster=cfg.cluster,
+        for_cluster=lambda jobs: _shipped(jobs, policies),
+        kept="no episode was written; the same command plays them again",
+        bar=("evaluate", "ep", chunk) if progress else None,
+    )
     return [row for part in parts for row in part]
+
+
+def _shipped(jobs: list[tuple], policies: dict[str, Any]) -> list[tuple]:
+    """The jobs as Ray tasks take them: a model travels as its file's bytes."""
+    shipped = {name: _shippable(spec) for name, spec in policies.items()}
+    return [(name, shipped[name], *rest) for name, _, *rest in jobs]
 
 
 def default_out(cfg: ExperimentConfig) -> Path:
@@ -374,44 +357,3 @@ def default_out(cfg: ExperimentConfig) -> Path:
     or settings never share (and so never refuse) a folder."""
     settings = as_before({k: v for k, v in asdict(cfg).items() if k not in VOLATILE})
     return Path(cfg.root) / "results" / f"evaluate-{cfg.grid.name}-{digest(settings)}"
-
-
-@app("evaluate", "bgap.evaluate", SCHEMAS, "no results were written; rerun the command")
-def main(dcfg: DictConfig) -> None:
-
-    cfg: ExperimentConfig = load(dcfg)
-    with connected(cfg.cluster):  # a cluster out of reach: one line before anything is written
-        _main(cfg, dcfg)
-
-
-def _main(cfg: ExperimentConfig, dcfg: DictConfig) -> None:
-    out = Path(cfg.out or default_out(cfg))
-    specs = policy_specs(cfg)  # a bad model list fails before the folder is made
-    if not specs:
-        raise ConfigError(
-            "nothing to evaluate: models=[] and no baseline; give models=[RUN_DIR,...] (run "
-            "folders, model.zip files or zoo names) or baselines=[idle,random,rule]"
-        )
-    with exclusive(out):  # a second evaluation into the same folder is refused
-        save_run_metadata(out, dcfg, upgrade=upgrade)
-        cells = grid_cells(cfg)
-        seeds, configs = plan(cfg, cells)
-        episodes = compact(play_plan(cfg, specs, cells, seeds, configs))  # stored is summarised
-        summary = summarize(episodes)
-        inputs = traffic_inputs(
-            [c.key for c in cells], configs, [c.table for c in cells], seeds, asdict(cfg.behavior)
-        )
-        write_results(out, episodes, summary, inputs)
-        models = model_records(specs)
-        if len(models):
-            write_atomic(out / MODELS, lambda tmp: models.to_csv(tmp, index=False))
-        drawn = plot_comparison(summary, out / "comparison.png")
-    if not drawn:
-        print(f"comparison.png not drawn: {len(summary)} bars (at most {MAX_BARS})")
-    if len(summary) <= MAX_BARS:
-        print(format_table(summary))
-    print(f"results in {out}")
-
-
-if __name__ == "__main__":
-    main()

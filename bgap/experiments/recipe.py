@@ -44,13 +44,11 @@ from typing import Any, NamedTuple
 import numpy as np
 import optuna
 import pandas as pd
-from omegaconf import DictConfig
 
-from bgap.common.config import app, load, validate
-from bgap.common.presets import selection_hint, write_preset
-from bgap.common.runs import save_run_metadata, write_atomic
-from bgap.experiments.compat import upgrade
-from bgap.experiments.config import SCHEMAS, ExperimentConfig, RecipeConfig, compose
+from bgap.common.config import validate
+from bgap.common.presets import write_preset
+from bgap.common.runs import write_atomic
+from bgap.experiments.config import ExperimentConfig, RecipeConfig, compose
 from bgap.experiments.evaluate_results import crash_split
 from bgap.experiments.recipe_choice import choose, choose_by_rule
 from bgap.experiments.recipe_report import (
@@ -376,27 +374,3 @@ def recipe(cfg: RecipeConfig, progress: bool = True) -> dict[str, Path]:
         chosen=out / "chosen.json",
     )
     return paths
-
-
-@app(
-    "recipe",
-    "bgap.recipe",
-    SCHEMAS,
-    "every finished sweep trial and training is kept; rerun the same command to continue",
-)
-def main(dcfg: DictConfig) -> None:
-
-    cfg: RecipeConfig = load(dcfg)
-    out = Path(cfg.out or Path(cfg.root) / "recipe")
-    save_run_metadata(out, dcfg, upgrade=upgrade)
-    paths = recipe(cfg)
-    print((out / "table.md").read_text())
-    for name, path in paths.items():
-        print(f"{name}: {path}")
-    for group in GROUPS:
-        path = paths[f"preset_{group}"]
-        print(f"use the preset with: {selection_hint(group, path)}")
-
-
-if __name__ == "__main__":
-    main()

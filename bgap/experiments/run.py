@@ -19,7 +19,6 @@ from omegaconf import DictConfig
 
 from bgap.analysis.episodes import cell_stats, parse_policies
 from bgap.analysis.stats import RULE_FLOOR, beats_idle, versus_rule
-from bgap.common.config import app, load
 from bgap.common.runs import (
     VOLATILE,
     digest,
@@ -29,7 +28,7 @@ from bgap.common.runs import (
 )
 from bgap.common.vocab import POLICIES, YARDSTICK_NAMES, YARDSTICKS
 from bgap.experiments.compat import as_before, upgrade
-from bgap.experiments.config import SCHEMAS, ExperimentConfig
+from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.evaluate import evaluate
 from bgap.experiments.evaluate_results import (
     compact,
@@ -41,7 +40,6 @@ from bgap.experiments.evaluate_results import (
 )
 from bgap.experiments.train import trainings
 from bgap.experiments.training import run_dir_for, training_config
-from bgap.runner.cluster import connected
 
 
 def results_dir(cfg: ExperimentConfig) -> Path:
@@ -176,19 +174,3 @@ VERDICTS = {
     "safer, slower": f"safer per km but slower (under {RULE_FLOOR:g} x its speed)",
     "faster, less safe": "faster but no safer per km",
 }
-
-
-@app(
-    "run",
-    "bgap.run",
-    SCHEMAS,
-    "finished trainings are kept and reused by a rerun of the same command",
-)
-def main(dcfg: DictConfig) -> None:
-    cfg = load(dcfg)
-    with connected(cfg.cluster):  # a cluster out of reach: one line before anything is written
-        run(cfg, dcfg)
-
-
-if __name__ == "__main__":
-    main()

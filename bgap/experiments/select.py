@@ -22,11 +22,10 @@ from pathlib import Path
 from typing import Any, Optional
 
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from bgap.analysis.stats import RULE_FLOOR, SHORT_PENALTY, STOCK_MARGIN, policy_score
-from bgap.common.cli import older_command_line
-from bgap.common.config import app, load, validate
+from bgap.common.config import validate
 from bgap.common.errors import ConfigError, check
 from bgap.common.runs import (
     CONFIG,
@@ -43,7 +42,7 @@ from bgap.experiments.config import ExperimentConfig, compose
 from bgap.experiments.validation import figures_with_rule, split_rule
 from bgap.runner.jobs import run_jobs
 
-__all__ = ["SelectConfig", "groups", "main", "markdown", "run_config", "runs", "select"]
+__all__ = ["SelectConfig", "groups", "markdown", "run_config", "runs", "select"]
 
 SKIPPED = ("checkpoints", "tb")
 """What a kept run's copy leaves out: resume state and TensorBoard logs (evaluation reads
@@ -192,26 +191,3 @@ class SelectConfig:
 
 
 SCHEMAS = ((None, "base_select", SelectConfig),)
-
-
-@app("select", "bgap.select", SCHEMAS, "nothing was kept; remove out= and rerun the command")
-def _hydra_main(dcfg: DictConfig) -> None:
-    cfg: SelectConfig = load(dcfg)
-    out = Path(cfg.out)
-    table_dir = Path(cfg.table) if cfg.table else out
-    table = select(Path(cfg.runs), out, table_dir, cfg.group, cfg.episodes, cfg.workers)
-    kept = table[table.kept]
-    for r in kept.itertuples():
-        print(f"kept {r.density} {r.policy} group {r.group}: seed {r.seed} (score {r.score:.2f})")
-    print(f"kept runs in {out}; table in {table_dir / 'selection.md'}")
-
-
-def main() -> None:
-    """The Hydra app. The older command line still reads: the runs folder first, then
-    ``--group``, ``--episodes``, ``--out``, ``--table`` and ``--workers``."""
-    older_command_line("runs")
-    _hydra_main()
-
-
-if __name__ == "__main__":
-    main()

@@ -29,23 +29,22 @@ from typing import Any
 import optuna
 import pandas as pd
 import yaml
-from omegaconf import DictConfig
 from optuna.trial import TrialState
 from stable_baselines3.common.callbacks import BaseCallback
 
 from bgap.agents.policies import baseline, load_model
 from bgap.analysis.stats import policy_score
 from bgap.common import studies
-from bgap.common.config import app, load, validate
+from bgap.common.config import validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.presets import selection_hint, write_preset
+from bgap.common.presets import write_preset
 from bgap.common.runs import VOLATILE, digest, write_atomic
 from bgap.common.scores import constrained_score
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.experiments import trial_log
 from bgap.experiments.compat import as_before
-from bgap.experiments.config import SCHEMAS, ExperimentConfig, SweepConfig, compose
+from bgap.experiments.config import ExperimentConfig, SweepConfig, compose
 from bgap.experiments.train import train
 from bgap.experiments.validation import (
     evaluate_model,
@@ -445,36 +444,3 @@ def write_tuned(
         node = replace(getattr(tcfg, group), name=path.stem, converged=converged)
         paths[group] = write_preset(node, group, path, note, f"(study {study.study_name})")
     return paths
-
-
-@app(
-    "sweep",
-    "bgap.sweep",
-    SCHEMAS,
-    "every finished trial is kept in the Optuna study; rerun the same command to continue",
-)
-def main(dcfg: DictConfig) -> None:
-    cfg: SweepConfig = load(dcfg)
-    study = sweep(cfg)
-    paths = write_outputs(study, cfg)
-    chosen = chosen_trial(study, cfg)
-    print(
-        json.dumps(
-            {
-                "chosen_trial": chosen.number,
-                "params": chosen.params,
-                **{k: v for k, v in chosen.user_attrs.items() if k != "overrides"},
-            },
-            indent=1,
-            default=str,
-        )
-    )
-    for name, path in paths.items():
-        print(f"{name}: {path}")
-    for name, path in paths.items():
-        if name.startswith("preset_"):
-            print(f"use the preset with: {selection_hint(path.parent.name, path)}")
-
-
-if __name__ == "__main__":
-    main()

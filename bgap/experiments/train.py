@@ -26,7 +26,6 @@ from typing import Any
 
 import numpy as np
 import torch
-from omegaconf import DictConfig
 from stable_baselines3.common.vec_env import VecMonitor
 from tqdm import TqdmExperimentalWarning, tqdm
 
@@ -37,8 +36,7 @@ from bgap.agents.monitor import (
     plot_learning_curves,
 )
 from bgap.agents.observation import with_features
-from bgap.common.config import app, load
-from bgap.common.errors import ConfigError, Interrupted
+from bgap.common.errors import Interrupted
 from bgap.common.runs import CHECKPOINT_STATE, write_atomic
 from bgap.experiments.batched import (
     batched_members,
@@ -46,10 +44,9 @@ from bgap.experiments.batched import (
     train_batched,
     train_members_on_node,
 )
-from bgap.experiments.config import SCHEMAS, ExperimentConfig
+from bgap.experiments.config import ExperimentConfig
 from bgap.experiments.training import (
     build_model,
-    member_configs,
     member_dirs,
     model_class,
     open_run_dir,
@@ -62,8 +59,7 @@ from bgap.experiments.training import (
 from bgap.runner.cluster import ClusterConfig, connected, ship_folders
 from bgap.runner.jobs import run_jobs
 from bgap.runner.locks import all_exclusive
-from bgap.runner.progress import JobBars
-from bgap.runner.threads import set_threads
+from bgap.runner.progress import Reporter
 from bgap.sim.mixture import MixtureHighway
 from bgap.sim.sb3 import SB3VecEnv
 from bgap.sim.simulators import make_vector_env
@@ -151,14 +147,17 @@ def _trainings(
     return dirs
 
 
-def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
-    """One SB3 training, in ``cfg.run_dir`` or the folder named after its settings."""
+def _train(
+    cfg: ExperimentConfig, progress: bool, callbacks: Sequence, report: Reporter | None = None
+) -> Path:
+    """One SB3 training, in ``cfg.run_dir`` or the folder named after its settings; its
+    progress on ``report`` (a bar of :func:`~bgap.runner.jobs.run_jobs`) or SB3's bar."""
     run_dir, status = open_run_dir(cfg)
     if status == "finished":
         return run_dir
     ckpt = run_dir / "checkpoints"
     resuming = status == "resume"
-    set_threads(1)  # small MLP: threads cost more than they give
+    callbacks = (*callbacks, *([ReportSteps(report)] if report else []))
     env = make_training_env(cfg, cfg.profile.n_envs, cfg.seed)
     p = cfg.profile
     monitor = TrainingMonitor(
@@ -210,7 +209,7 @@ def _train(cfg: ExperimentConfig, progress: bool, callbacks: Sequence) -> Path:
                 model.learn(
                     total_timesteps=remaining,
                     callback=[callback, *callbacks],
-                    progress_bar=progress,
+                    progress_bar=progress and report is None,
                     reset_num_timesteps=not resuming,
                     tb_log_name=cfg.agent.algo,
                 )
@@ -239,28 +238,23 @@ def _side_by_side(
     cfgs: list[ExperimentConfig], dirs: list[Path], progress: bool, callbacks: Sequence
 ) -> None:
     """SB3 trainings, ``workers`` at a time, each in its own process with a progress bar
-    here (steps, time left); one after the other here when there is one, ``workers=1``, or
-    they are short. Each training seeds
-    itself, so it learns the same as alone."""
+    here (steps, time left); one after the other here, with one torch thread, when there is
+    one, ``workers=1``, or they are short. Each training seeds itself, so it learns the same
+    as alone."""
     workers = cfgs[0].workers if cfgs[0].profile.train_steps >= SIDE_BY_SIDE_STEPS else 1
-    here = workers <= 1 or len(cfgs) == 1
-    names = [f"{c.policy} s{c.seed}" for c in cfgs]
-    steps = [c.profile.train_steps for c in cfgs]
     kept = (
         f"each training keeps its last checkpoint in its run folder ({dirs[0]}, ...); "
         "continue with the same command and resume=true"
     )
-    with JobBars(names, steps, enabled=progress and not here) as bars:
-
-        def done(k: int, run_dir: Path) -> None:
-            bars.write(f"finished: {cfgs[k].policy} seed {cfgs[k].seed} in {run_dir}")
-
-        def extra(k: int) -> Sequence:
-            report = bars.reporter(k)
-            return callbacks if here else () if report is None else (ReportSteps(report),)
-
-        calls = [(c, progress and here, extra(k)) for k, c in enumerate(cfgs)]
-        run_jobs(_train, calls, workers=workers, done=None if here else done, kept=kept)
+    bars = [(f"{c.policy} s{c.seed}", c.profile.train_steps) for c in cfgs]
+    run_jobs(
+        _train,
+        [(c, progress, callbacks) for c in cfgs],
+        workers=workers,
+        torch_threads=1,  # small MLP: threads cost more than they give
+        kept=kept,
+        job_bars=bars if progress else None,
+    )
 
 
 def _on_cluster(cfgs: list[ExperimentConfig], dirs: list[Path]) -> None:
@@ -312,30 +306,3 @@ def _train_on_node(base: Path, cfg: ExperimentConfig) -> None:
 def task_folder_name(cfg: ExperimentConfig) -> str:
     """The folder in ``cluster.storage`` where a training's Ray task keeps its checkpoints."""
     return f"{Path(cfg.run_dir).name}-{run_name(cfg)}"
-
-
-@app("train", "bgap.train", SCHEMAS)
-def main(dcfg: DictConfig) -> None:
-    cfg: ExperimentConfig = load(dcfg)
-    cfgs = member_configs(cfg)
-    if cfg.resume:  # a user's resume=true with nothing to resume is a typo, not a new run
-        where = [Path(cfg.run_dir)] if cfg.run_dir else [run_dir_for(c) for c in cfgs]
-        if cfg.cluster.address and cfg.cluster.storage:  # where Ray tasks keep checkpoints
-            where += [Path(cfg.cluster.storage) / task_folder_name(c) for c in cfgs]
-        if not any(d.exists() for d in where):
-            raise ConfigError(
-                f"resume=true: nothing to resume at {where[0]} (no such folder); check "
-                "run_dir, or drop resume=true to start a new training"
-            )
-        saved = (CHECKPOINT_STATE, "model.zip")  # a checkpoint, or a finished training
-        if not any(any(d.rglob(name)) for d in where if d.exists() for name in saved):
-            raise ConfigError(
-                f"resume=true: nothing to resume at {where[0]} (no checkpoint was written "
-                "there yet); drop resume=true to start the training anew"
-            )
-    for run_dir in trainings(cfgs):
-        print(f"model: {run_dir / 'model.zip'}")
-
-
-if __name__ == "__main__":
-    main()

@@ -31,10 +31,8 @@ from typing import Any
 import numpy as np
 import optuna
 import pandas as pd
-from omegaconf import DictConfig
 
 from bgap.agents.rule_based import DEFAULT, SITUATIONS, RuleParams, TunedRule, rule_based
-from bgap.common.config import app, load
 from bgap.common.errors import check, check_apart
 from bgap.common.plotting import pyplot
 from bgap.common.presets import check_owner, write_preset
@@ -207,12 +205,3 @@ def run(cfg: TuneRuleConfig) -> Path:
     path = write_preset(preset, "rule", target, note, owner)
     print(note.partition(": ")[2] + f"; wrote {path}")
     return path
-
-
-@app("tune_rule", "bgap.tune_rule", SCHEMAS)
-def main(dcfg: DictConfig) -> None:
-    run(load(dcfg))
-
-
-if __name__ == "__main__":
-    main()

@@ -17,22 +17,19 @@ alike.
 
 from __future__ import annotations
 
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from bgap.agents import zoo
 from bgap.agents.policies import as_policy, check_rows, model_path
-from bgap.common.config import app, load
-from bgap.common.errors import ConfigError, check
-from bgap.common.runs import CONFIG, digest, save_run_metadata, write_atomic
+from bgap.common.errors import check
+from bgap.common.runs import CONFIG, digest, write_atomic
 from bgap.common.scores import episode_distance
 from bgap.common.vocab import BASELINES
-from bgap.runner.locks import exclusive
 from bgap.sim.config import SCHEMAS as SIM_SCHEMAS
 from bgap.sim.config import BaseConfig
 from bgap.sim.film import frames
@@ -173,30 +170,3 @@ def describe(k: int, row: Any, path: Path) -> str:
         f"{row.avg_speed:.2f} m/s, {int(row.lane_changes)} lane changes, "
         f"{row.distance:.0f} m -> {path}"
     )
-
-
-@app("watch", "bgap.watch", SCHEMAS, "no video was finished; rerun the command")
-def _main(dcfg: DictConfig) -> None:
-    cfg: WatchConfig = load(dcfg)
-    out = Path(cfg.out or default_out(cfg))
-    with exclusive(out):
-        save_run_metadata(out, dcfg)
-        watch(cfg, out)
-
-
-def main() -> None:
-    """``python -m bgap.watch``: the policy's own settings go first on the command line, so
-    that the user's override them."""
-    args = sys.argv[1:]
-    given = [a.split("=", 1)[1] for a in args if a.startswith("policy=")]
-    if given and not any(a.startswith("-") for a in args):
-        try:
-            own = own_settings(given[-1])
-        except (ConfigError, FileNotFoundError):
-            own = []  # the command reports the policy in one line when it loads it
-        sys.argv = [sys.argv[0], *own, *args]
-    _main()
-
-
-if __name__ == "__main__":
-    main()

@@ -17,17 +17,15 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import OmegaConf
 
 from bgap.agents import zoo
-from bgap.common.config import app, load
 from bgap.common.errors import ConfigError, check
-from bgap.common.runs import CONFIG, MODEL, model_file, run_folders, write_atomic
+from bgap.common.runs import CONFIG, MODEL, model_file, write_atomic
 from bgap.common.tables import read_table
 from bgap.common.vocab import FLOOR_BAND, SPEED_FLOOR
 from bgap.experiments.config import CHECKPOINTS
 from bgap.experiments.evaluate_policies import run_records, validation_block
-from bgap.runner.locks import exclusive
 
 
 @dataclass
@@ -151,22 +149,3 @@ def export(run: Path, arm: str, out: Path, checkpoint: str = "best") -> Path:
     text = yaml.safe_dump(card, sort_keys=False, default_flow_style=None, width=100)
     write_atomic(target.with_suffix(".yaml"), text)
     return target
-
-
-@app("zoo", "bgap.zoo", SCHEMAS)
-def main(dcfg: DictConfig) -> None:
-    cfg: ZooConfig = load(dcfg)
-    runs = Path(cfg.runs)
-    found = [runs] if (runs / MODEL).exists() else run_folders(runs)
-    if not found:
-        raise ConfigError(f"runs={cfg.runs!r} holds no run folder with {MODEL}; train first")
-    out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with exclusive(out):
-        written = [export(run, cfg.arm, out, cfg.checkpoint) for run in found]
-    size = sum(p.stat().st_size for p in written)
-    print(f"{len(written)} policies in {out} ({size / 1e6:.1f} MB)")
-
-
-if __name__ == "__main__":
-    main()
