@@ -34,7 +34,7 @@ from bgap.agents.policies import rollout
 from bgap.calibration.config import CalibrateAppConfig
 from bgap.cmetric.score import label_auc, score_trajectories
 from bgap.common.plotting import pyplot
-from bgap.common.presets import write_preset
+from bgap.common.presets import user_preset, write_preset
 from bgap.common.runs import write_atomic
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
 from bgap.common.vocab import AGGRESSIVE, CLASSES, CONSERVATIVE
@@ -64,8 +64,7 @@ def report_dir(cfg: CalibrateAppConfig) -> Path:
 
 
 def preset_file(cfg: CalibrateAppConfig) -> Path:
-    default = Path(cfg.root) / "presets" / "behavior" / "user_calibrated.yaml"
-    return Path(cfg.calibrate.preset or default)
+    return Path(cfg.calibrate.preset or user_preset(cfg.root, "behavior", "user_calibrated"))
 
 
 def storage_url(cfg: CalibrateAppConfig) -> str:

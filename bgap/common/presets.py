@@ -38,21 +38,31 @@ PIPELINE_DIR = str(_pipeline_dir())
 a wheel ships as ``bgap/presets``. On Hydra's search path after the packaged ones."""
 
 
+SHIPPED = (CONF_DIR, PIPELINE_DIR)
+"""The shipped preset folders in Hydra's order: a name in the first wins."""
+
+
 def preset_path(group: str, name: str) -> Path:
-    """The shipped preset ``<group>/<name>.yaml``: the pipeline's where it wrote one, else
-    the packaged one (which need not exist)."""
-    written = Path(PIPELINE_DIR) / group / f"{name}.yaml"
-    return written if written.exists() else Path(CONF_DIR) / group / f"{name}.yaml"
+    """The shipped preset ``<group>/<name>.yaml`` Hydra would select (:data:`SHIPPED`'s
+    first that holds it; the packaged path where none does)."""
+    found = (Path(d, group, f"{name}.yaml") for d in SHIPPED)
+    return next((p for p in found if p.exists()), Path(CONF_DIR, group, f"{name}.yaml"))
+
+
+def user_preset(root: str | Path, group: str, name: str) -> Path:
+    """Where a user's run under ``root`` writes preset ``group=name`` by default:
+    ``<root>/presets/<group>/<name>.yaml``, on the search path with the default root."""
+    return Path(root) / "presets" / group / f"{name}.yaml"
 
 
 def group_options(group: str) -> list[str]:
     """The shipped presets of config group ``group`` (packaged and the pipeline's)."""
-    return sorted({p.stem for d in (CONF_DIR, PIPELINE_DIR) for p in Path(d, group).glob("*.yaml")})
+    return sorted({p.stem for d in SHIPPED for p in Path(d, group).glob("*.yaml")})
 
 
 def is_group(key: str) -> bool:
     """Whether ``key`` names a shipped preset group (``env``, ``behavior``, ``rule``)."""
-    return "." not in key and any(Path(d, key).is_dir() for d in (CONF_DIR, PIPELINE_DIR))
+    return "." not in key and any(Path(d, key).is_dir() for d in SHIPPED)
 
 
 def load_preset(schema: type, path: str | Path) -> Any:

@@ -38,7 +38,7 @@ from bgap.common import studies
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
 from bgap.common.plotting import pyplot
-from bgap.common.presets import write_preset
+from bgap.common.presets import user_preset, write_preset
 from bgap.common.runs import VOLATILE, digest, write_atomic
 from bgap.common.scores import constrained_score
 from bgap.common.studies import open_storage, resumable_study, run_until, sqlite_url
@@ -440,7 +440,7 @@ def write_tuned(
     )
     paths, converged = {}, finished(study, cfg)
     for group in groups:
-        path = Path(cfg.preset or Path(cfg.root) / "presets" / group / "user_tuned.yaml")
+        path = Path(cfg.preset or user_preset(cfg.root, group, "user_tuned"))
         node = replace(getattr(tcfg, group), name=path.stem, converged=converged)
         paths[group] = write_preset(node, group, path, note, f"(study {study.study_name})")
     return paths

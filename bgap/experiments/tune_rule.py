@@ -35,7 +35,7 @@ import pandas as pd
 from bgap.agents.rule_based import DEFAULT, SITUATIONS, RuleParams, TunedRule, rule_based
 from bgap.common.errors import check, check_apart
 from bgap.common.plotting import pyplot
-from bgap.common.presets import check_owner, write_preset
+from bgap.common.presets import check_owner, user_preset, write_preset
 from bgap.common.runs import save_run_metadata, write_atomic
 from bgap.common.scores import collisions_per_100km, constrained_score, episode_distance
 from bgap.common.vocab import SPEED_FLOOR
@@ -183,7 +183,7 @@ def plot(table: pd.DataFrame, path: Path, title: str) -> None:
 def run(cfg: TuneRuleConfig) -> Path:
     """Search, then write the trials, their plot and the chosen preset; returns the preset."""
     owner = f"bgap.tune_rule situation={cfg.situation}"
-    target = cfg.preset or Path(cfg.root) / "presets" / "rule" / f"{cfg.situation}.yaml"
+    target = cfg.preset or user_preset(cfg.root, "rule", cfg.situation)
     check_owner(target, owner)  # before minutes of search, not after
     out = save_run_metadata(cfg.out or f"outputs/tune_rule/{cfg.situation}", cfg, upgrade=upgrade)
     table = search(cfg)
