@@ -191,8 +191,7 @@ class TrainingMonitor:
         if best is not None and rank(best, self.rule) < rank(record, self.rule):
             return  # ties: the later evaluation, which has trained longer
         self.state["best"] = dict(record)
-        write_atomic(self.run_dir / BEST_MODEL, policy.save)  # whole or not at all
-        write_atomic(self.run_dir / "best.json", json.dumps(self.state["best"], indent=1))
+        keep_best(self.run_dir, policy.save, self.state["best"])
         self.log("eval/best_episodes", record["episodes"])
 
     def checkpoint(self, save: dict[str, Callable[[Path], Any]], extra: dict[str, Any]) -> None:
@@ -274,16 +273,20 @@ def choose_again(run_dir: Path, rule: str) -> bool:
     path, best = run_dir / "evaluations.csv", run_dir / "best.json"
     if rule != "per_km" or not path.exists() or not best.exists():
         return False
-    records = [
-        {k: v.item() if hasattr(v, "item") else v for k, v in r.items()}
-        for r in pd.read_csv(path).to_dict(orient="records")
-    ]
-    first = min(reversed(records), key=lambda r: rank(r, rule))  # ties: the later
+    records = pd.read_csv(path).to_dict(orient="records")
+    first = min(reversed(records), key=lambda r: rank(r, rule))  # ties: the later, as in training
     if first["episodes"] == json.loads(best.read_text())["episodes"]:
         return False
-    write_atomic(run_dir / BEST_MODEL, (run_dir / validation_model(first["episodes"])).read_bytes())
-    write_atomic(best, json.dumps(first, indent=1))
+    keep_best(run_dir, (run_dir / validation_model(first["episodes"])).read_bytes(), first)
     return True
+
+
+def keep_best(run_dir: Path, model: bytes | Callable[[Path], Any], record: dict[str, Any]) -> None:
+    """Write the kept checkpoint: ``model`` (its bytes, or a writer such as SB3's ``save``) as
+    ``best_model.zip`` and its validation ``record`` as ``best.json``, each whole or not at
+    all."""
+    write_atomic(run_dir / BEST_MODEL, model)
+    write_atomic(run_dir / "best.json", json.dumps(record, indent=1))
 
 
 def _figures(episodes: pd.DataFrame, policy_frequency: int | None = None) -> dict[str, float]:
