@@ -614,3 +614,31 @@ def test_commands_of_a_study_stage_write_under_outputs_by_default(name, default)
     schemas = {"parity": parity.SCHEMAS, "figures": figures.SCHEMAS, "select": select.SCHEMAS}
     composed = compose(name, [], schemas[name])
     assert composed.out == default if default != "???" else composed._get_node("out")._is_missing()
+
+
+def test_a_shipped_preset_reads_through_its_schema_fresh_and_once_per_version(
+    tmp_path, monkeypatch
+):
+    """``presets.shipped``: the packaged folder wins over the pipeline's (Hydra's order), each
+    call gets its own copy, an edited file is read again, and a missing one is None or one
+    line with the group's presets."""
+    import bgap.common.presets as presets
+    from bgap.common.errors import ConfigError
+    from bgap.traffic.scenario import EnvConfig
+
+    packaged, pipeline = tmp_path / "conf", tmp_path / "results"
+    for folder, lanes in ((packaged, 3), (pipeline, 5)):
+        (folder / "env").mkdir(parents=True)
+        (folder / "env" / "road.yaml").write_text(f"defaults: [base_env]\nlanes_count: {lanes}\n")
+    (pipeline / "env" / "other.yaml").write_text("lanes_count: 2\n")
+    monkeypatch.setattr(presets, "SHIPPED", (str(packaged), str(pipeline)))
+    first = presets.shipped(EnvConfig, "env", "road")
+    assert first == presets.load_preset(EnvConfig, packaged / "env" / "road.yaml")
+    assert first.lanes_count == 3 and presets.shipped(EnvConfig, "env", "other").lanes_count == 2
+    first.lanes_count = 9  # the caller's copy, not the cache
+    assert presets.shipped(EnvConfig, "env", "road").lanes_count == 3
+    (packaged / "env" / "road.yaml").write_text("lanes_count: 4\n")  # another size: read again
+    assert presets.shipped(EnvConfig, "env", "road").lanes_count == 4
+    assert presets.shipped(EnvConfig, "env", "none") is None
+    with pytest.raises(ConfigError, match=r"^no road; use one of \['other', 'road'\]$"):
+        presets.shipped(EnvConfig, "env", "none", "no road")

@@ -32,7 +32,7 @@ import numpy as np
 from highway_env.vehicle.behavior import IDMVehicle
 
 from bgap.common.errors import ConfigError
-from bgap.common.presets import PIPELINE_DIR, load_preset, preset_path
+from bgap.common.presets import PIPELINE_DIR, shipped
 from bgap.traffic.road import EGO_MAX_SPEED, FASTER, IDLE, LANE_LEFT, LANE_RIGHT, LANE_WIDTH, SLOWER
 
 # highway-env's normalisation of the Kinematics observation (KinematicObservation.normalize_obs)
@@ -203,10 +203,9 @@ def tuned(config: dict[str, Any]) -> RuleParams:
     stock = config.get("behavior", {}).get("name") == "stock"
     rows = int(config.get("observation", {}).get("vehicles_count", 0))
     for situation in ("stock",) if stock else ("sparse", "dense"):
-        path = preset_path("rule", situation)
-        if not path.exists():
+        preset = shipped(TunedRule, "rule", situation)
+        if preset is None:
             continue
-        preset = load_preset(TunedRule, path)
         if stock or preset.observed_vehicles == rows:
             return RuleParams(**{f.name: getattr(preset, f.name) for f in fields(RuleParams)})
     traffic = "stock traffic" if stock else f"{rows} observed vehicles"

@@ -35,8 +35,8 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode
 
-from bgap.common.errors import ConfigError, check
-from bgap.common.presets import load_preset, preset_path
+from bgap.common.errors import check
+from bgap.common.presets import shipped
 from bgap.sim import core
 from bgap.sim.highway_params import class_table
 from bgap.sim.vector import VectorHighway, env_seeds
@@ -129,11 +129,8 @@ class DrawnTraffic(VectorHighway):
 
 def _behavior(name: str) -> dict[str, Any]:
     """The packaged behaviour preset ``name`` as the environment config's ``behavior``."""
-    path = preset_path("behavior", name)
-    if not path.exists():
-        choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
-        raise ConfigError(f"mixture.classes: no behaviour preset {name!r}; use {choices}")
-    return env_behavior(load_preset(BehaviorConfig, path))
+    missing = f"mixture.classes: no behaviour preset {name!r}"
+    return env_behavior(shipped(BehaviorConfig, "behavior", name, missing))
 
 
 class SplitReplay(VectorHighway):

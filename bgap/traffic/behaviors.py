@@ -12,8 +12,6 @@ could never overspeed on a 30 m/s highway.
 
 from __future__ import annotations
 
-import copy
-import functools
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from typing import Any, Optional
@@ -25,7 +23,7 @@ from highway_env.vehicle.behavior import IDMVehicle
 from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.common.errors import check
-from bgap.common.presets import load_preset, preset_path
+from bgap.common.presets import shipped
 from bgap.common.vocab import COLORS, PAPER_MIXES
 
 
@@ -100,16 +98,8 @@ def env_behavior(behavior: BehaviorConfig) -> dict[str, Any]:
 
 def paper_behavior() -> BehaviorConfig:
     """Table I of the paper, from its one home: the packaged preset ``behavior/paper.yaml``
-    (read once per version of the file: every environment built takes these defaults, and
-    OmegaConf's validated load costs ~25 ms, a sixth of a sparse evaluation)."""
-    path = preset_path("behavior", "paper")
-    stat = path.stat()
-    return copy.deepcopy(_read_paper(str(path), stat.st_mtime_ns, stat.st_size))
-
-
-@functools.lru_cache(maxsize=4)
-def _read_paper(path: str, mtime_ns: int, size: int) -> BehaviorConfig:
-    return load_preset(BehaviorConfig, path)
+    (read once per version of the file: every environment built takes these defaults)."""
+    return shipped(BehaviorConfig, "behavior", "paper", "behavior/paper.yaml is missing")
 
 
 # Field of DriverParams -> IDMVehicle attribute, with the conversion from paper units (also

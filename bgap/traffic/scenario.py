@@ -24,7 +24,7 @@ import numpy as np
 from highway_env.envs.highway_env import HighwayEnv
 
 from bgap.common.errors import ConfigError, check
-from bgap.common.presets import load_preset, preset_path
+from bgap.common.presets import shipped
 from bgap.common.vocab import CLASSES, MIX_SAMPLING
 from bgap.traffic.behaviors import BehaviorConfig, env_behavior, paper_behavior
 from bgap.traffic.replay import TrafficConfig
@@ -418,8 +418,4 @@ def _whole(value: Any) -> bool:
 
 def env_preset(name: str) -> EnvConfig:
     """The ``env`` group's packaged preset ``name`` (``env/<name>.yaml``) as an EnvConfig."""
-    path = preset_path("env", name)
-    if not path.exists():
-        choices = sorted(p.stem for p in path.parent.glob("*.yaml"))
-        raise ConfigError(f"density {name!r} has no preset env/{name}.yaml; use {choices}")
-    return load_preset(EnvConfig, path)
+    return shipped(EnvConfig, "env", name, f"density {name!r} has no preset env/{name}.yaml")

@@ -25,7 +25,7 @@ from bgap.cmetric.io import load_trajectories
 from bgap.cmetric.params import CMetricConfig
 from bgap.cmetric.score import score_trajectories
 from bgap.common.errors import ConfigError
-from bgap.common.presets import load_preset, preset_path
+from bgap.common.presets import shipped
 from bgap.common.vocab import AGGRESSIVE, CONSERVATIVE
 
 BOUNDARY_DIR = "cmetric/boundary"
@@ -84,7 +84,7 @@ def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict, pd.DataF
     """The boundary of the CMetric preset ``cmetric`` on ``tables`` (even episodes), its
     report (the balanced accuracy of both parts and each part's size) and the scored
     vehicles (:func:`labelled_scores`)."""
-    cfg = load_preset(CMetricConfig, preset_path("cmetric", cmetric))
+    cfg = _cmetric(cmetric)
     scored = labelled_scores(tables, cfg)
     even = scored.episode.astype(int) % 2 == 0
     tune, check = scored[even], scored[~even]
@@ -115,7 +115,9 @@ def fit(tables: list[Path], cmetric: str) -> tuple[ClassBoundary, dict, pd.DataF
 def share(table: str | Path | pd.DataFrame, boundary: ClassBoundary) -> float:
     """The share of a table's scored vehicles (each track once; an ``is_ego`` vehicle left
     out) whose aggressiveness lies above ``boundary``."""
-    cfg = load_preset(CMetricConfig, preset_path("cmetric", boundary.cmetric))
+    cfg = shipped(
+        CMetricConfig, "cmetric", boundary.cmetric, f"no CMetric preset {boundary.cmetric!r}"
+    )
     rows = load_trajectories(table, extra=("is_ego",))
     vehicles = score_trajectories(rows, cfg).vehicles.dropna(subset=["aggressiveness"])
     keys = ["episode", "vehicle_id"]
@@ -130,12 +132,15 @@ def share(table: str | Path | pd.DataFrame, boundary: ClassBoundary) -> float:
     return float((vehicles.aggressiveness > boundary.boundary).mean())
 
 
+def _cmetric(name: str) -> CMetricConfig:
+    """The shipped CMetric preset ``name``."""
+    return shipped(CMetricConfig, "cmetric", name, f"no CMetric preset {name!r}")
+
+
 def packaged(cmetric: str = "tuned") -> ClassBoundary:
     """The boundary the pipeline fixed for the CMetric preset ``cmetric``."""
-    path = preset_path(BOUNDARY_DIR, cmetric)
-    if not path.exists():
-        raise ConfigError(
-            f"no class boundary for cmetric={cmetric} ({path}); the pipeline's "
-            "cmetric_boundary stage fixes it (dvc repro cmetric_boundary)"
-        )
-    return load_preset(ClassBoundary, path)
+    missing = (
+        f"no class boundary for cmetric={cmetric}; the pipeline's cmetric_boundary stage "
+        "fixes it (dvc repro cmetric_boundary)"
+    )
+    return shipped(ClassBoundary, BOUNDARY_DIR, cmetric, missing)
