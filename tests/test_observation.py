@@ -193,3 +193,18 @@ def test_a_learner_with_options_trains_saves_and_is_evaluated_on_the_paper_obser
     first = evaluate(cfg, {"m": str(run), "rule": "rule"}, cells, episodes=3, progress=False)
     again = evaluate(cfg, {"m": str(run), "rule": "rule"}, cells, episodes=3, progress=False)
     assert len(first) == 6 and first.equals(again)
+
+
+def test_rows_on_roads_of_other_lanes_read_each_their_own_road():
+    """``lanes`` per row (the mixture's replayed tables may have other roads than bgap's):
+    each row's columns, the rule-based ego's choice included, are those of an environment
+    of its own lanes, computed alone."""
+    options = ["closing", "ttc", "rule"]
+    four = env_config(make_cfg("env=dense"))
+    three = {**four, "lanes_count": 3}
+    obs4, _ = VectorHighway(four, 2).reset(seed=2)
+    obs3, _ = VectorHighway(three, 2).reset(seed=3)
+    mixed = ObservationFeatures(options, four)(np.concatenate([obs4, obs3]), [4, 4, 3, 3])
+    alone = [ObservationFeatures(options, c)(o) for c, o in ((four, obs4), (three, obs3))]
+    np.testing.assert_array_equal(mixed, np.concatenate(alone))
+    assert not np.array_equal(alone[1], ObservationFeatures(options, four)(obs3))  # it matters

@@ -197,3 +197,72 @@ def test_traffic_mixture_trains_through_the_one_door_and_refuses_highway_env(tmp
     folder = train(cfg, progress=False)
     assert folder.name.startswith("mixture-behavior_rich-drawn-tiny-s0-")
     assert (folder / "model.zip").is_file()
+
+
+def test_the_added_columns_read_each_environments_own_road(tmp_path):
+    """A replayed table's road (two lanes here) beside bgap's four: the observation options,
+    the rule-based ego's suggestion included, read each environment on its own road."""
+    from bgap.agents.observation import ObservationFeatures, WithFeatures
+
+    mixture = MixtureConfig(vehicles=[5, 10], tables=[scenes_table(tmp_path)])
+    env = MixtureHighway(_config(), 20, mixture, min_duration=4.0)
+    assert env.env_lanes.tolist() == [4] * 14 + [2] * 6
+    options = ["ttc", "rule"]
+    wrapped = WithFeatures(env, ObservationFeatures(options, _config()))
+    seen = wrapped.reset(seed=10)[0]
+    raw = env.observations()
+    for lanes, rows in ((4, slice(0, 14)), (2, slice(14, 20))):
+        own = ObservationFeatures(options, {**_config(), "lanes_count": lanes})(raw[rows])
+        np.testing.assert_array_equal(seen[rows], own)
+
+
+def test_the_generalisation_preset_trains_stock_only_beside_and_tests_on_held_out_traffic(
+    tmp_path,
+):
+    """``bgap.run experiment=generalisation``: the behaviour-rich policy trains on the
+    mixture, the default one on its stock source alone at the same vehicle counts; both are
+    tested on bgap's drivers in every density and on the tables' held-out scenes, every
+    policy observing the 17 rows it trained with."""
+    from bgap.common.config import validate
+    from bgap.experiments.evaluate import cell_env_config, grid_cells
+    from bgap.experiments.training import training_config
+    from tests.configs import compose
+
+    table = scenes_table(tmp_path)
+    cfg = validate(
+        compose(
+            "run",
+            [
+                "experiment=generalisation",
+                f"traffic.mixture.tables=[{table}]",
+                f"grid.replays=[dense:{table}]",
+            ],
+        )
+    )
+    rich, stock = training_config(cfg, "behavior_rich"), training_config(cfg, "default")
+    assert rich.traffic.mixture.sources == {"bgap": 0.5, "stock": 0.2, "replay": 0.3}
+    assert stock.traffic.mixture.sources == {"stock": 1.0} and stock.traffic.mixture.tables == []
+    assert stock.traffic.mixture.vehicles == rich.traffic.mixture.vehicles == [5, 10, 20, 30, 40]
+    cells = grid_cells(cfg)
+    assert [(c.density, bool(c.table)) for c in cells] == [
+        ("sparse", False), ("dense", False), ("dense", True)
+    ]  # fmt: skip
+    configs = [cell_env_config(cfg, c) for c in cells]
+    assert {c["observation"]["vehicles_count"] for c in configs} == {ROWS}
+    assert [c["vehicles_count"] for c in configs[:2]] == [5, 40]  # the presets' counts
+    sources = [c.get("traffic", {}).get("source", "simulated") for c in configs]
+    assert sources == ["simulated", "simulated", "replay"]  # (simulated: no traffic key)
+    assert configs[2]["traffic"]["scenes"] == "test" and configs[2]["traffic"]["mode"] == "reactive"
+
+
+def test_a_table_of_another_road_is_refused_where_the_hand_built_egos_read_one(tmp_path):
+    """The checkpoint rule's scripted references read every environment as the config's
+    road: through the one door, a two-lane table beside bgap's four lanes is one line."""
+    from bgap.sim.simulators import make_vector_env
+
+    config = {**_config(), "traffic": {"source": "mixture", "min_duration": 4.0}}
+    config["traffic"]["mixture"] = {"vehicles": [5, 10], "tables": [scenes_table(tmp_path)]}
+    with pytest.raises(ConfigError, match="has 2 lanes where the road has 4"):
+        make_vector_env(config, 20, "vector")
+    config["lanes_count"] = 2  # the table's road everywhere: taken
+    assert make_vector_env(config, 20, "vector").env_lanes.tolist() == [2] * 20

@@ -8,10 +8,10 @@ import optuna
 import pytest
 from optuna.trial import TrialState
 
+from bgap.commands.pipeline import main
 from bgap.common.errors import ConfigError
 from bgap.common.studies import run_until
 from bgap.experiments import trial_log
-from bgap.commands.pipeline import main
 
 
 def _objective(trial: optuna.Trial) -> float:

@@ -40,7 +40,7 @@ import numpy as np
 from gymnasium import spaces
 
 from bgap.agents.config import OBSERVATION_OPTIONS, observation_options
-from bgap.agents.rule_based import V_RANGE, X_RANGE, rule_based
+from bgap.agents.rule_based import V_RANGE, X_RANGE, RuleBasedEgo, rule_based
 from bgap.traffic.road import LANE_WIDTH, N_ACTIONS, VEHICLE_LENGTH, VEHICLE_WIDTH
 
 TTC_HORIZON = 10.0
@@ -55,9 +55,15 @@ class ObservationFeatures:
 
     def __init__(self, features: Sequence[str], config: dict[str, Any] | None = None) -> None:
         self.features = observation_options(list(features))
-        config = config or {}
-        self.y_range = LANE_WIDTH * int(config.get("lanes_count", 4))
-        self.rule = rule_based(config) if "rule" in self.features else None
+        self.config = config or {}
+        self.lanes = int(self.config.get("lanes_count", 4))
+        self._rules: dict[int, RuleBasedEgo] = {}
+
+    def rule(self, lanes: int) -> RuleBasedEgo:
+        """The rule-based ego on a road of ``lanes`` lanes (the config's speeds)."""
+        if lanes not in self._rules:
+            self._rules[lanes] = rule_based({**self.config, "lanes_count": lanes})
+        return self._rules[lanes]
 
     @property
     def columns(self) -> int:
@@ -67,20 +73,24 @@ class ObservationFeatures:
     def __bool__(self) -> bool:
         return bool(self.features)
 
-    def __call__(self, obs: np.ndarray) -> np.ndarray:
-        """``obs`` (B, V, 5) or (V, 5) with the added columns, float32."""
+    def __call__(self, obs: np.ndarray, lanes: Any = None) -> np.ndarray:
+        """``obs`` (B, V, 5) or (V, 5) with the added columns, float32. ``lanes``: each
+        row's road (B,) or one for all, where environments differ (the mixture's replayed
+        tables); default the config's."""
         obs = np.asarray(obs, dtype=np.float32)
         if not self.features:
             return obs
         single = obs.ndim == 2
         batch = obs[None] if single else obs
+        lanes = np.broadcast_to(np.asarray(self.lanes if lanes is None else lanes), len(batch))
         parts = [batch]
         present = batch[:, :, 0] > 0.5
         others = present.copy()
         others[:, 0] = False
         if "closing" in self.features or "ttc" in self.features:
             o = batch.astype(np.float64)
-            dx, dy, dvx = o[:, :, 1] * X_RANGE, o[:, :, 2] * self.y_range, o[:, :, 3] * V_RANGE
+            y_range = LANE_WIDTH * lanes[:, None]
+            dx, dy, dvx = o[:, :, 1] * X_RANGE, o[:, :, 2] * y_range, o[:, :, 3] * V_RANGE
             closing = np.where(others, -np.sign(dx) * dvx, 0.0)
             if "closing" in self.features:
                 parts.append(np.clip(closing / V_RANGE, -1.0, 1.0)[..., None])
@@ -92,9 +102,13 @@ class ObservationFeatures:
                 ttc = np.where(course & ((closing > 0.0) | (gap <= 0.0)), ttc, TTC_HORIZON)
                 ttc = np.minimum(ttc, TTC_HORIZON) / TTC_HORIZON
                 parts.append(np.where(present, ttc, 0.0)[..., None])
-        if self.rule is not None:
+        if "rule" in self.features:
+            actions = np.empty(len(batch), dtype=np.int64)
+            for road in np.unique(lanes):
+                rows = lanes == road
+                actions[rows] = self.rule(int(road))(batch[rows])
             onehot = np.zeros((*batch.shape[:2], N_ACTIONS))
-            onehot[np.arange(len(batch)), 0, self.rule(batch)] = 1.0
+            onehot[np.arange(len(batch)), 0, actions] = 1.0
             parts.append(onehot)
         out = np.concatenate([p.astype(np.float32) for p in parts], axis=-1)
         return out[0] if single else out
@@ -118,6 +132,8 @@ class WithFeatures(gym.vector.VectorWrapper):
     def __init__(self, env: gym.vector.VectorEnv, features: ObservationFeatures) -> None:
         super().__init__(env)
         self.features = features
+        self.lanes = getattr(env, "env_lanes", None)
+        """Each environment's lanes where they differ (:class:`bgap.sim.mixture.MixtureHighway`)."""
         self.single_observation_space = features.space(env.single_observation_space)
         self.observation_space = gym.vector.utils.batch_space(
             self.single_observation_space, env.num_envs
@@ -125,19 +141,19 @@ class WithFeatures(gym.vector.VectorWrapper):
 
     def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict]:
         obs, info = self.env.reset(**kwargs)
-        return self.features(obs), info
+        return self.features(obs, self.lanes), info
 
     def step(self, actions: Any) -> tuple[Any, Any, Any, Any, dict]:
         obs, rewards, terminated, truncated, info = self.env.step(actions)
         if "final_obs" in info:
             final = info["final_obs"].copy()
             for b in np.flatnonzero(info.get("_final_obs", terminated | truncated)):
-                final[b] = self.features(final[b])
+                final[b] = self.features(final[b], None if self.lanes is None else self.lanes[b])
             info["final_obs"] = final
-        return self.features(obs), rewards, terminated, truncated, info
+        return self.features(obs, self.lanes), rewards, terminated, truncated, info
 
     def observations(self) -> np.ndarray:
-        return self.features(self.env.observations())
+        return self.features(self.env.observations(), self.lanes)
 
     def state_dict(self, *args: Any, **kwargs: Any) -> dict[str, Any]:
         return self.env.state_dict(*args, **kwargs)

@@ -111,11 +111,20 @@ def replay_mix(table: str, simulation_frequency: float, min_duration: float) -> 
 
 
 def cell_env_config(cfg: ExperimentConfig, cell: Cell) -> dict[str, Any]:
-    """highway-env config of one cell: the run's reward and behaviours, the cell's traffic."""
+    """highway-env config of one cell: the run's reward and behaviours, the cell's traffic
+    (a run trained on the mixture is tested in bgap's drivers and on the replayed tables'
+    held-out scenes, every policy observing the rows it trained with)."""
     env = cfg.env if cell.density == cfg.env.name else env_preset(cell.density)
     traffic = cfg.traffic
-    if cell.table:
-        traffic = replace(traffic, name="replay", source="replay", table=cell.table, mode=cell.mode)
+    held_out = traffic.source == "mixture"  # a mixture's learner: one traffic at a time
+    if held_out:  # bgap's drivers in the simulated cells, every one observed as it learnt
+        traffic = replace(traffic, name="simulated", source="simulated", mixture=None)
+        env = replace(env, observed_vehicles=cfg.env.observed_vehicles)
+    if cell.table:  # of a mixture's learner, only the scenes it never trained on
+        scenes = "test" if held_out else traffic.scenes
+        traffic = replace(
+            traffic, name="replay", source="replay", table=cell.table, mode=cell.mode, scenes=scenes
+        )
     return env_config(replace(cfg, env=env, mix=cell.mix, radius=cell.radius, traffic=traffic))
 
 

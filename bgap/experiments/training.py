@@ -53,11 +53,16 @@ T = TypeVar("T")
 
 
 def training_config(cfg: ExperimentConfig, policy: str | None = None) -> ExperimentConfig:
-    """The config a policy trains under: ``default`` swaps in stock traffic."""
+    """The config a policy trains under: ``default`` swaps in stock traffic; under the
+    mixture (``traffic=mixture``), the mixture's stock source alone, at its vehicle counts:
+    the stock-only learner that the mixture's is read against."""
     policy = policy or cfg.policy
     cfg = replace(cfg, policy=policy)
     if policy == "default":
         cfg = replace(cfg, behavior=BehaviorConfig(name="stock"), mix_sampling="fixed")
+        if cfg.traffic.source == "mixture":
+            stock = replace(cfg.traffic.mixture, sources={"stock": 1.0}, tables=[])
+            cfg = replace(cfg, traffic=replace(cfg.traffic, mixture=stock))
     return cfg
 
 

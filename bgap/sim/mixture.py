@@ -222,6 +222,8 @@ class MixtureHighway(gym.vector.VectorEnv):
         ]
         self.num_envs = sum(m.num_envs for m in self.members)
         self._edges = np.cumsum([0] + [m.num_envs for m in self.members])
+        self.env_lanes = np.concatenate([np.full(m.num_envs, m.lanes) for m in self.members])
+        """Each environment's lanes (a replayed table's road may differ from bgap's)."""
         self.single_observation_space = self.members[0].single_observation_space
         self.single_action_space = spaces.Discrete(5)
         rows = self.single_observation_space.shape

@@ -64,7 +64,17 @@ def make_vector_env(
                 "record or watch its sources one at a time (traffic=simulated, traffic=replay)"
             )
         mixture = MixtureConfig(**traffic["mixture"])
-        return MixtureHighway(config, num_envs, mixture, traffic["min_duration"])
+        env = MixtureHighway(config, num_envs, mixture, traffic["min_duration"])
+        lanes = int(config.get("lanes_count", 4))
+        for member in env.members:
+            check(  # the scripted egos (the checkpoint rule's references) read one road
+                member.lanes == lanes,
+                "traffic.mixture.tables",
+                member.traffic.get("table"),
+                f"has {member.lanes} lanes where the road has {lanes} (env.lanes_count): the "
+                "hand-built egos read every environment as that road; give tables of its lanes",
+            )
+        return env
     if backend == "vector":
         if render:
             raise ConfigError(
