@@ -148,7 +148,7 @@ def test_a_kill_inside_the_metadatas_atomic_write_does_not_block_a_rerun(
 def test_an_interrupted_commands_metadata_does_not_block_a_rerun(tmp_path, monkeypatch, capsys):
     """Ctrl-C during bgap.simulate leaves config.yaml and command.txt only, and says so; a
     rerun with other settings then runs (nothing of a result would be lost)."""
-    import bgap.datasets.simulate as simulate
+    import bgap.commands.simulate as simulate
 
     monkeypatch.chdir(tmp_path)
 

@@ -181,7 +181,8 @@ def test_evaluation_grids_take_replay_cells_beside_simulated_ones(tmp_path):
     those of a plain ``traffic=replay`` rollout on the same seeds, and whose rows carry the
     replay's name; simulated cells beside it carry "" (never a missing key)."""
     from bgap.common.config import validate
-    from bgap.experiments.evaluate import evaluate, grid_cells, summarize
+    from bgap.experiments.evaluate import evaluate, grid_cells
+    from bgap.experiments.evaluate_results import summarize
     from tests.configs import compose
 
     config = env_config(make_cfg("env=sparse", "env.duration=12", "mix=0.4"))

@@ -102,13 +102,14 @@ def test_tuned_reads_the_preset_of_the_traffic_and_refuses_a_missing_one(tmp_pat
     """rule_tuned plays the preset whose observed vehicles match the environment's (the
     stock preset in stock traffic), and names the stage to run where none does."""
     from bgap.agents import rule_based as module
+    from bgap.common import presets
     from bgap.common.errors import ConfigError
     from bgap.common.presets import write_preset
 
     def path(group: str, name: str):
         return tmp_path / group / f"{name}.yaml"
 
-    monkeypatch.setattr(module, "preset_path", path)
+    monkeypatch.setattr(presets, "SHIPPED", (str(tmp_path),))
     preset = TunedRule(time_wanted=2.5, situation="dense", observed_vehicles=40)
     write_preset(preset, "rule", path("rule", "dense"), "test preset", "test")
     dense = {"observation": {"vehicles_count": 40}, "behavior": {"name": "paper"}}

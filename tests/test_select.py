@@ -14,7 +14,7 @@ from bgap.analysis.stats import rule_objective
 from bgap.common.config import validate
 from bgap.common.errors import ConfigError
 from bgap.experiments.config import compose
-from bgap.experiments.evaluate import policy_specs
+from bgap.experiments.evaluate_policies import policy_specs
 from bgap.experiments.select import groups, select
 from bgap.experiments.train import train
 from bgap.experiments.validation import validation_figures

@@ -18,7 +18,8 @@ from highway_env.vehicle.kinematics import Vehicle
 
 from bgap.agents.policies import baseline, rollout
 from bgap.envs import make_env
-from bgap.experiments.evaluate import Cell, evaluate, summarize
+from bgap.experiments.evaluate import Cell, evaluate
+from bgap.experiments.evaluate_results import summarize
 from bgap.traffic.scenario import env_config
 from tests.conftest import make_cfg
 
@@ -339,7 +340,7 @@ def test_short_training_beats_random_on_collisions(tmp_path):
 def test_training_on_the_vector_backend_transfers_to_highway_env(tmp_path):
     """Equal steps of training on either backend, both evaluated on highway-env on the same
     seeds: the collision rates' 95% intervals overlap and both beat a random policy."""
-    from bgap.experiments.evaluate import summarize
+    from bgap.experiments.evaluate_results import summarize
     from bgap.experiments.train import train
 
     runs = {}
@@ -421,7 +422,7 @@ def _check_best_checkpoints(cfg, runs: Path) -> None:
     """Each training kept its validation with the highest mean return (ties: the later),
     best_model.zip replays that validation's figures, and evaluation plays best_model.zip
     unless checkpoint=last."""
-    from bgap.experiments.evaluate import policy_specs
+    from bgap.experiments.evaluate_policies import policy_specs
     from bgap.experiments.training import training_config
     from bgap.experiments.validation import validation_episodes
 
