@@ -183,9 +183,11 @@ def test_traffic_mixture_trains_through_the_one_door_and_refuses_highway_env(tmp
     from bgap.sim.simulators import make_vector_env
 
     table = scenes_table(tmp_path)
+    # the road has the table's two lanes: the scripted egos (references) read one road
     overrides = ["traffic=mixture", f"traffic.mixture.tables=[{table}]", "traffic.min_duration=4",
                  "traffic.mixture.vehicles=[5,10]", "env.observed_vehicles=17", "profile=tiny",
-                 "profile.n_envs=6", "agent=ppo", f"root={tmp_path}"]  # fmt: skip
+                 "profile.n_envs=6", "agent=ppo", f"root={tmp_path}",
+                 "env.lanes_count=2"]  # fmt: skip
     cfg = validate(compose("train", overrides))
     config = env_config(cfg)
     env = make_vector_env(config, 6)
