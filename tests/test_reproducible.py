@@ -39,6 +39,8 @@ _DONE = {
     "zoo@mix100-dense",
     "train_learner@learner-ppo-sparse",
     "train_learner@learner-ppo-dense",
+    "train_learner@learner-dqn-sparse",
+    "zoo@learner-dqn-sparse",
     "zoo@learner-ppo-dense",
     "zoo@learner-ppo-sparse",
 }
