@@ -41,6 +41,8 @@ _DONE = {
     "train_learner@learner-ppo-dense",
     "train_learner@learner-dqn-sparse",
     "zoo@learner-dqn-sparse",
+    "train_learner@learner-dqn-dense",
+    "zoo@learner-dqn-dense",
     "zoo@learner-ppo-dense",
     "zoo@learner-ppo-sparse",
 }
