@@ -43,6 +43,8 @@ _DONE = {
     "zoo@learner-dqn-sparse",
     "train_learner@learner-dqn-dense",
     "zoo@learner-dqn-dense",
+    "train_learner@learner-qrdqn-sparse",
+    "zoo@learner-qrdqn-sparse",
     "zoo@learner-ppo-dense",
     "zoo@learner-ppo-sparse",
 }
